@@ -1,0 +1,230 @@
+"""Readers for the ACFR (University of Sydney) logs: Car Park and Victoria Park, text and MATLAB forms.
+
+Laser: 361 beams, beam k at k * 0.5 deg with 0 deg = vehicle right, 90 deg = ahead; in the vehicle
+frame (x ahead, y left) that is bearing -90 deg + k * 0.5 deg. Ranges at or beyond 80 m carry no return
+(the logs write 81.87 to 81.91 m there; Victoria Park's raw file >= 8000 cm) and become +inf.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .logdata import LogData, ScanGeometry
+from .textlog import IngestError, Table, parse_numeric_csv
+
+SYDNEY_BEAMS = 361
+SYDNEY_GEOMETRY = ScanGeometry(
+    beam_count=SYDNEY_BEAMS, start_angle_rad=-math.pi / 2, angle_increment_rad=math.pi / 360, max_range_m=80.0
+)
+NO_RETURN_M = 80.0
+
+CARPARK_MAT = "data_set.mat"
+CARPARK_BEACONS_MAT = "beac_juan3.mat"
+VICTORIA_DR_MAT = "aa3_dr.mat"
+VICTORIA_GPS_MAT = "aa3_gpsx.mat"
+VICTORIA_LASER_MAT = "aa3_lsr2.mat"
+
+
+def _dataset_name(directory: Path) -> str:
+    d = directory.resolve()
+    return d.parent.name if d.name in ("text", "txt", "mat") else d.name
+
+
+def _ranges(table: Table, path: Path, skip_bad_lines: bool, warnings: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Check ranges (no negatives) and map no-return values to +inf. Returns (kept rows mask, ranges)."""
+    ranges = table.rows[:, 1:]
+    negative = (ranges < 0).any(axis=1)
+    if negative.any():
+        first = int(np.argmax(negative))
+        if not skip_bad_lines:
+            beam = int(np.argmax(ranges[first] < 0))
+            raise IngestError(
+                f"{path}:{table.line_numbers[first]}: negative range {ranges[first, beam]} m at beam {beam}"
+            )
+        warnings.append(f"{path}: dropped {int(negative.sum())} scans with negative ranges")
+    keep = ~negative
+    out = ranges[keep].copy()
+    out[out >= NO_RETURN_M] = np.inf
+    return keep, out
+
+
+def _check_times(name: str, t: np.ndarray, warnings: list[str]) -> None:
+    back = int(np.sum(np.diff(t) < 0))
+    if back:
+        warnings.append(f"{name}: {back} timestamps go backwards; file order kept")
+
+
+def _report_dropped(table: Table, path: Path, warnings: list[str]) -> None:
+    if table.dropped:
+        warnings.append(f"{path}: skipped {table.dropped} malformed lines (first: {table.drop_reasons[0]})")
+
+
+def read_sydney_text(directory: Path, skip_bad_lines: bool = False) -> LogData:
+    """DRS.txt (t,speed,steering), GPS.txt (t,x,y), LASER.txt (t + 361 ranges), optional
+    INTENSITY.txt (t + 361 codes) and BEACONS.txt (x,y)."""
+    directory = Path(directory)
+    warnings: list[str] = []
+    drs_path = directory / "DRS.txt"
+    if not drs_path.exists():
+        raise IngestError(f"{drs_path}: file not found (a Sydney text log needs DRS.txt)")
+    drs = parse_numeric_csv(drs_path, 3, skip_bad_lines)
+    _report_dropped(drs, drs_path, warnings)
+    _check_times(str(drs_path), drs.rows[:, 0], warnings)
+    log = LogData(
+        dataset=_dataset_name(directory), source_format="sydney-text", source=str(directory),
+        motion_model="ackermann", vehicle_preset="carpark", ackermann=drs.rows,
+    )
+    gps_path = directory / "GPS.txt"
+    if gps_path.exists():
+        gps = parse_numeric_csv(gps_path, 3, skip_bad_lines)
+        _report_dropped(gps, gps_path, warnings)
+        _check_times(str(gps_path), gps.rows[:, 0], warnings)
+        log.gps = gps.rows
+    else:
+        warnings.append(f"{gps_path}: not present; no GPS channel")
+    laser_path = directory / "LASER.txt"
+    if laser_path.exists():
+        laser = parse_numeric_csv(laser_path, 1 + SYDNEY_BEAMS, skip_bad_lines)
+        _report_dropped(laser, laser_path, warnings)
+        keep, ranges = _ranges(laser, laser_path, skip_bad_lines, warnings)
+        log.geometry = SYDNEY_GEOMETRY
+        log.scan_t_s = laser.rows[keep, 0]
+        log.scan_ranges_m = ranges
+        _check_times(str(laser_path), log.scan_t_s, warnings)
+        intensity_path = directory / "INTENSITY.txt"
+        if intensity_path.exists():
+            inten = parse_numeric_csv(intensity_path, 1 + SYDNEY_BEAMS, skip_bad_lines)
+            _report_dropped(inten, intensity_path, warnings)
+            by_time = dict(zip(inten.rows[:, 0].tolist(), range(len(inten.rows)), strict=True))
+            idx = [by_time.get(t) for t in log.scan_t_s.tolist()]
+            if any(i is None for i in idx):
+                missing = sum(i is None for i in idx)
+                warnings.append(f"{intensity_path}: {missing} scans have no intensity line; intensities left out")
+            else:
+                log.scan_intensities = inten.rows[idx, 1:]
+    else:
+        warnings.append(f"{laser_path}: not present; this log has odometry and GPS only, no laser")
+    beacons_path = directory / "BEACONS.txt"
+    if beacons_path.exists():
+        log.landmarks = parse_numeric_csv(beacons_path, 2, skip_bad_lines).rows
+    log.warnings = warnings
+    return log
+
+
+def _loadmat(path: Path) -> dict:
+    from scipy.io import loadmat
+
+    try:
+        return loadmat(path)
+    except FileNotFoundError:
+        raise IngestError(f"{path}: file not found") from None
+    except Exception as e:  # scipy raises several types for corrupt files
+        raise IngestError(f"{path}: not a readable MATLAB file ({e})") from None
+
+
+def _var(mat: dict, path: Path, name: str) -> np.ndarray:
+    if name not in mat:
+        raise IngestError(f"{path}: variable {name!r} missing")
+    return np.asarray(mat[name])
+
+
+def _finite(path: Path, name: str, a: np.ndarray) -> np.ndarray:
+    bad = ~np.isfinite(a)
+    if bad.any():
+        raise IngestError(f"{path}: variable {name!r} has {int(bad.sum())} non-finite values "
+                          f"(first at index {int(np.argmax(bad.ravel()))})")
+    return a
+
+
+def read_sydney_mat(directory: Path, skip_bad_lines: bool = False) -> LogData:
+    """Car Park `data_set.mat` (+ `beac_juan3.mat`), or Victoria Park `aa3_dr.mat`, `aa3_gpsx.mat` and,
+    when present, `aa3_lsr2.mat`."""
+    directory = Path(directory)
+    if (directory / CARPARK_MAT).exists():
+        return _read_carpark_mat(directory)
+    if (directory / VICTORIA_DR_MAT).exists():
+        return _read_victoria_mat(directory, skip_bad_lines)
+    raise IngestError(f"{directory}: no {CARPARK_MAT} or {VICTORIA_DR_MAT} found")
+
+
+def _read_carpark_mat(directory: Path) -> LogData:
+    path = directory / CARPARK_MAT
+    m = _loadmat(path)
+    warnings: list[str] = []
+    t_vs = _finite(path, "Time_VS", _var(m, path, "Time_VS").ravel().astype(float))
+    ack = np.column_stack([
+        t_vs,
+        _finite(path, "Velocity", _var(m, path, "Velocity").ravel().astype(float)),
+        _finite(path, "Steering", _var(m, path, "Steering").ravel().astype(float)),
+    ])
+    gps = np.column_stack([
+        _var(m, path, "TimeGPS").ravel(), _var(m, path, "GPSLon").ravel(), _var(m, path, "GPSLat").ravel()
+    ]).astype(float)
+    laser = _finite(path, "Laser", _var(m, path, "Laser").astype(float))
+    if laser.ndim != 2 or laser.shape[1] != SYDNEY_BEAMS:
+        raise IngestError(f"{path}: 'Laser' has shape {laser.shape}, expected (K, {SYDNEY_BEAMS})")
+    if (laser < 0).any():
+        k = int(np.argmax((laser < 0).any(axis=1)))
+        raise IngestError(f"{path}: 'Laser' scan {k} has a negative range")
+    ranges = laser.copy()
+    ranges[ranges >= NO_RETURN_M] = np.inf
+    t_laser = _var(m, path, "TimeLaser").ravel().astype(float)
+    if len(t_laser) != len(laser):
+        raise IngestError(f"{path}: {len(t_laser)} laser times for {len(laser)} scans")
+    for name, t in (("Time_VS", t_vs), ("TimeGPS", gps[:, 0]), ("TimeLaser", t_laser)):
+        _check_times(f"{path}:{name}", t, warnings)
+    log = LogData(
+        dataset=_dataset_name(directory), source_format="sydney-mat", source=str(directory),
+        motion_model="ackermann", vehicle_preset="carpark", geometry=SYDNEY_GEOMETRY,
+        scan_t_s=t_laser, scan_ranges_m=ranges, ackermann=ack, gps=gps, warnings=warnings,
+    )
+    if "Intensity" in m:
+        log.scan_intensities = np.asarray(m["Intensity"], dtype=float)
+    beac = directory / CARPARK_BEACONS_MAT
+    if beac.exists():
+        log.landmarks = _var(_loadmat(beac), beac, "estbeac").astype(float).reshape(-1, 2)
+    return log
+
+
+def _read_victoria_mat(directory: Path, skip_bad_lines: bool) -> LogData:
+    warnings: list[str] = []
+    dr_path = directory / VICTORIA_DR_MAT
+    dr = _loadmat(dr_path)
+    ack = np.column_stack([
+        _var(dr, dr_path, "time").ravel() / 1000.0, _var(dr, dr_path, "speed").ravel(),
+        _var(dr, dr_path, "steering").ravel(),
+    ]).astype(float)
+    _finite(dr_path, "speed/steering", ack)
+    _check_times(str(dr_path), ack[:, 0], warnings)
+    log = LogData(
+        dataset=_dataset_name(directory), source_format="sydney-mat", source=str(directory),
+        motion_model="ackermann", vehicle_preset="carpark", ackermann=ack, warnings=warnings,
+    )
+    gps_path = directory / VICTORIA_GPS_MAT
+    if gps_path.exists():
+        g = _loadmat(gps_path)
+        log.gps = np.column_stack([
+            _var(g, gps_path, "timeGps").ravel() / 1000.0, _var(g, gps_path, "Lo_m").ravel(),
+            _var(g, gps_path, "La_m").ravel(),
+        ]).astype(float)
+    laser_path = directory / VICTORIA_LASER_MAT
+    if laser_path.exists():
+        lm = _loadmat(laser_path)
+        raw = _var(lm, laser_path, "LASER").astype(np.uint16)
+        if raw.ndim != 2 or raw.shape[1] != SYDNEY_BEAMS:
+            raise IngestError(f"{laser_path}: 'LASER' has shape {raw.shape}, expected (K, {SYDNEY_BEAMS})")
+        cm = (raw & 0x1FFF).astype(float)
+        ranges = cm / 100.0
+        ranges[cm >= NO_RETURN_M * 100] = np.inf
+        log.geometry = SYDNEY_GEOMETRY
+        log.scan_t_s = _var(lm, laser_path, "TLsr").ravel().astype(float) / 1000.0
+        if len(log.scan_t_s) != len(raw):
+            raise IngestError(f"{laser_path}: {len(log.scan_t_s)} laser times for {len(raw)} scans")
+        log.scan_ranges_m = ranges
+        log.scan_intensities = (raw >> 13).astype(float)
+    else:
+        warnings.append(f"{laser_path}: not present; this log has odometry and GPS only, no laser")
+    return log

@@ -1,0 +1,190 @@
+"""Channel names, the project's own JSON schemas, and builders for the Foxglove protobuf messages.
+
+The full reference, with field meanings and units, is docs/CHANNELS.md.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from foxglove_schemas_protobuf.LaserScan_pb2 import LaserScan
+from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from foxglove_schemas_protobuf.Pose_pb2 import Pose
+from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+from foxglove_schemas_protobuf.PosesInFrame_pb2 import PosesInFrame
+from google.protobuf.timestamp_pb2 import Timestamp
+
+# ---- input channels ---------------------------------------------------------------------------
+LASER = "/laser/scan"
+ODOM_ACKERMANN = "/vehicle/odometry"  # Sydney logs: rear-left wheel speed and steering angle
+ODOM_POSE = "/odom/pose"  # CARMEN logs: integrated odometry pose (and velocities where known)
+GPS = "/gps/position"
+LANDMARKS_TRUTH = "/ground_truth/landmarks"  # surveyed poles (Car Park) or simulated obstacles
+RELATIONS_TRUTH = "/ground_truth/relations"  # Kuemmerle et al. relations (Freiburg logs)
+TRAJECTORY_TRUTH = "/ground_truth/pose"  # true pose where a simulator knows it
+
+# ---- output channels --------------------------------------------------------------------------
+SLAM_POSE = "/slam/pose"
+SLAM_PARTICLES = "/slam/particles"
+SLAM_TRAJECTORY = "/slam/trajectory"
+SLAM_MAP = "/slam/map"
+SLAM_MAP_FINAL = "/slam/map_final"
+SLAM_STATS = "/slam/stats"
+
+MAP_FRAME = "map"
+
+ACKERMANN_SCHEMA: dict[str, Any] = {
+    "title": "gslam.AckermannOdometry",
+    "description": "Rear-left wheel speed and front steering angle of a car-like vehicle.",
+    "type": "object",
+    "properties": {
+        "t_s": {"type": "number", "description": "sample time on the dataset clock [s]"},
+        "speed_mps": {"type": "number", "description": "rear-left wheel speed [m/s]"},
+        "steering_rad": {"type": "number", "description": "front steering angle [rad], left positive"},
+    },
+    "required": ["t_s", "speed_mps", "steering_rad"],
+}
+
+ODOM_POSE_SCHEMA: dict[str, Any] = {
+    "title": "gslam.OdometryPose",
+    "description": "Integrated wheel odometry pose in the odometry frame (CARMEN ODOM, or FLASER odom).",
+    "type": "object",
+    "properties": {
+        "t_s": {"type": "number", "description": "time stamp from the log [s] (may go backwards)"},
+        "x_m": {"type": "number"},
+        "y_m": {"type": "number"},
+        "theta_rad": {"type": "number"},
+        "tv_mps": {"type": ["number", "null"], "description": "translational velocity, if logged"},
+        "rv_radps": {"type": ["number", "null"], "description": "rotational velocity, if logged"},
+        "source": {"type": "string", "description": "ODOM or FLASER"},
+    },
+    "required": ["t_s", "x_m", "y_m", "theta_rad"],
+}
+
+LANDMARKS_SCHEMA: dict[str, Any] = {
+    "title": "gslam.Landmarks",
+    "description": "Surveyed (or simulated) landmark positions in the GPS frame [m].",
+    "type": "object",
+    "properties": {
+        "x_m": {"type": "array", "items": {"type": "number"}},
+        "y_m": {"type": "array", "items": {"type": "number"}},
+        "radius_m": {"type": "array", "items": {"type": "number"}},
+        "kind": {"type": "string"},
+    },
+    "required": ["x_m", "y_m"],
+}
+
+RELATIONS_SCHEMA: dict[str, Any] = {
+    "title": "gslam.Relations",
+    "description": "Ground-truth relations (Kuemmerle et al. 2009): pose(t2) in the frame of pose(t1).",
+    "type": "object",
+    "properties": {
+        "t1_s": {"type": "array", "items": {"type": "number"}},
+        "t2_s": {"type": "array", "items": {"type": "number"}},
+        "dx_m": {"type": "array", "items": {"type": "number"}},
+        "dy_m": {"type": "array", "items": {"type": "number"}},
+        "dyaw_rad": {"type": "array", "items": {"type": "number"}},
+    },
+    "required": ["t1_s", "t2_s", "dx_m", "dy_m", "dyaw_rad"],
+}
+
+STATS_SCHEMA: dict[str, Any] = {
+    "title": "gslam.StepStats",
+    "description": "Per-step statistics of the filter.",
+    "type": "object",
+    "properties": {
+        "scan_index": {"type": "integer"},
+        "t_s": {"type": "number"},
+        "effective_sample_size": {"type": "number"},
+        "resampled": {"type": "boolean"},
+        "map_points": {"type": "integer", "description": "points in the best particle's map"},
+        "map_points_total": {"type": "integer", "description": "points over all particles"},
+        "step_ms": {"type": "number", "description": "filter step wall time [ms]"},
+        "best_particle": {"type": "integer"},
+    },
+}
+
+
+def timestamp(t_s: float) -> Timestamp:
+    ts = Timestamp()
+    sec = math.floor(t_s)
+    ts.seconds = int(sec)
+    ts.nanos = min(int(round((t_s - sec) * 1e9)), 999_999_999)
+    return ts
+
+
+def t_of(ts: Timestamp) -> float:
+    return ts.seconds + ts.nanos * 1e-9
+
+
+def _set_pose(pose: Pose, x: float, y: float, theta: float) -> None:
+    pose.position.x = float(x)
+    pose.position.y = float(y)
+    pose.position.z = 0.0
+    pose.orientation.w = math.cos(theta / 2)
+    pose.orientation.z = math.sin(theta / 2)
+
+
+def yaw_of(pose: Pose) -> float:
+    q = pose.orientation
+    return math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+
+
+def laser_scan(
+    t_s: float, ranges_m: np.ndarray, start_angle_rad: float, end_angle_rad: float,
+    intensities: np.ndarray | None = None, frame_id: str = "laser",
+) -> LaserScan:
+    """A foxglove.LaserScan; ranges with no return are +inf."""
+    msg = LaserScan(frame_id=frame_id, start_angle=start_angle_rad, end_angle=end_angle_rad)
+    msg.timestamp.CopyFrom(timestamp(t_s))
+    msg.pose.orientation.w = 1.0
+    msg.ranges.extend(ranges_m.tolist())
+    if intensities is not None:
+        msg.intensities.extend(intensities.tolist())
+    return msg
+
+
+def pose_in_frame(t_s: float, x: float, y: float, theta: float, frame_id: str) -> PoseInFrame:
+    msg = PoseInFrame(frame_id=frame_id)
+    msg.timestamp.CopyFrom(timestamp(t_s))
+    _set_pose(msg.pose, x, y, theta)
+    return msg
+
+
+def poses_in_frame(t_s: float, poses: np.ndarray, frame_id: str) -> PosesInFrame:
+    """poses: (K, 3) array of x, y, heading."""
+    msg = PosesInFrame(frame_id=frame_id)
+    msg.timestamp.CopyFrom(timestamp(t_s))
+    for x, y, th in np.asarray(poses, dtype=float):
+        _set_pose(msg.poses.add(), x, y, th)
+    return msg
+
+
+def poses_of(msg: PosesInFrame) -> np.ndarray:
+    return np.array([[p.position.x, p.position.y, yaw_of(p)] for p in msg.poses]).reshape(-1, 3)
+
+
+_CLOUD_FIELDS = (("x", 0), ("y", 4), ("z", 8), ("probability", 12))
+
+
+def point_cloud(t_s: float, xy: np.ndarray, probability: np.ndarray, frame_id: str = MAP_FRAME) -> PointCloud:
+    """A foxglove.PointCloud with float32 x, y, z=0 and probability fields (Rerun needs the z field)."""
+    msg = PointCloud(frame_id=frame_id, point_stride=16)
+    msg.timestamp.CopyFrom(timestamp(t_s))
+    msg.pose.orientation.w = 1.0
+    for name, offset in _CLOUD_FIELDS:
+        msg.fields.add(name=name, offset=offset, type=PackedElementField.FLOAT32)
+    buf = np.zeros((len(xy), 4), dtype=np.float32)
+    buf[:, :2] = xy
+    buf[:, 3] = probability
+    msg.data = buf.tobytes()
+    return msg
+
+
+def cloud_arrays(msg: PointCloud) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of `point_cloud`: (xy (K,2) float64, probability (K,))."""
+    buf = np.frombuffer(msg.data, dtype=np.float32).reshape(-1, 4)
+    return buf[:, :2].astype(float), buf[:, 3].astype(float)

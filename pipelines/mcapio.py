@@ -1,0 +1,178 @@
+"""MCAP reading and writing shared by ingest and the pipelines.
+
+`AtomicMcapWriter` writes protobuf (Foxglove schemas) and JSON channels into a temporary file beside
+the target and renames it into place only when `finish()` succeeds, so no half-written output is left.
+`abort()` removes the temporary file; `finish()` called from an interruption handler leaves a valid,
+finished file holding what was written so far.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from mcap.reader import make_reader
+from mcap.well_known import MessageEncoding, SchemaEncoding
+from mcap.writer import CompressionType, Writer
+from mcap_protobuf.decoder import DecoderFactory
+from mcap_protobuf.schema import register_schema
+
+NS = 1_000_000_000
+
+
+def to_ns(t_s: float) -> int:
+    """Seconds on the dataset clock to integer nanoseconds (MCAP log time)."""
+    return int(round(t_s * NS))
+
+
+class AtomicMcapWriter:
+    """An MCAP writer with protobuf and JSON channels, written atomically (temp file + rename)."""
+
+    def __init__(self, path: str | os.PathLike, profile: str = "", chunk_size: int = 1 << 20) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.tmp_path = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+        self._file = open(self.tmp_path, "wb")
+        self._writer = Writer(self._file, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+        self._writer.start(profile=profile, library="gslam")
+        self._channels: dict[str, int] = {}
+        self._json_schemas: dict[str, int] = {}
+        self._sequence: dict[str, int] = {}
+        self.closed = False
+
+    # -- channels ---------------------------------------------------------------------------
+    def _json_channel(self, topic: str, schema_name: str, schema: dict[str, Any]) -> int:
+        if topic not in self._channels:
+            if schema_name not in self._json_schemas:
+                self._json_schemas[schema_name] = self._writer.register_schema(
+                    name=schema_name, encoding=SchemaEncoding.JSONSchema, data=json.dumps(schema).encode()
+                )
+            self._channels[topic] = self._writer.register_channel(
+                topic=topic, message_encoding=MessageEncoding.JSON, schema_id=self._json_schemas[schema_name]
+            )
+        return self._channels[topic]
+
+    def _proto_channel(self, topic: str, message: Any) -> int:
+        if topic not in self._channels:
+            schema_id = register_schema(self._writer, type(message))
+            self._channels[topic] = self._writer.register_channel(
+                topic=topic, message_encoding=MessageEncoding.Protobuf, schema_id=schema_id
+            )
+        return self._channels[topic]
+
+    def _add(self, channel_id: int, topic: str, log_time_ns: int, data: bytes) -> None:
+        seq = self._sequence.get(topic, 0)
+        self._sequence[topic] = seq + 1
+        self._writer.add_message(
+            channel_id=channel_id, log_time=log_time_ns, publish_time=log_time_ns, data=data, sequence=seq
+        )
+
+    def write_proto(self, topic: str, message: Any, log_time_ns: int) -> None:
+        """Write a protobuf message (a Foxglove schema) on `topic` at `log_time_ns`."""
+        self._add(self._proto_channel(topic, message), topic, log_time_ns, message.SerializeToString())
+
+    def write_json(
+        self, topic: str, schema_name: str, schema: dict[str, Any], obj: dict[str, Any], log_time_ns: int
+    ) -> None:
+        """Write a JSON message with a JSON schema of the project's own."""
+        channel = self._json_channel(topic, schema_name, schema)
+        self._add(channel, topic, log_time_ns, json.dumps(obj, separators=(",", ":")).encode())
+
+    def add_metadata(self, name: str, data: dict[str, Any]) -> None:
+        """MCAP metadata record; values that are not strings are stored as JSON."""
+        self._writer.add_metadata(name, {k: v if isinstance(v, str) else json.dumps(v) for k, v in data.items()})
+
+    # -- ending -----------------------------------------------------------------------------
+    def finish(self) -> Path:
+        """Finish the MCAP (index, footer) and move it into place. Safe to call twice."""
+        if not self.closed:
+            self._writer.finish()
+            self._file.close()
+            os.replace(self.tmp_path, self.path)
+            self.closed = True
+        return self.path
+
+    def abort(self) -> None:
+        """Drop the temporary file: nothing is left at the target path."""
+        if not self.closed:
+            try:
+                self._file.close()
+            finally:
+                self.tmp_path.unlink(missing_ok=True)
+                self.closed = True
+
+    def __enter__(self) -> AtomicMcapWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.finish()
+        else:
+            self.abort()
+
+
+@dataclass
+class Message:
+    """One decoded message: topic, log time [s], and the decoded object (protobuf or dict)."""
+
+    topic: str
+    t_s: float
+    log_time_ns: int
+    value: Any
+
+
+class McapInput:
+    """Reads an MCAP written by gslam: metadata, summary, and messages decoded in log-time order."""
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = Path(path)
+        if not self.path.exists():
+            raise FileNotFoundError(f"{self.path}: no such file")
+
+    def _reader(self, f):
+        return make_reader(f, decoder_factories=[DecoderFactory()])
+
+    def metadata(self) -> dict[str, dict[str, Any]]:
+        """All metadata records, values parsed from JSON where they are JSON."""
+        out: dict[str, dict[str, Any]] = {}
+        with open(self.path, "rb") as f:
+            for record in self._reader(f).iter_metadata():
+                parsed = {}
+                for k, v in record.metadata.items():
+                    try:
+                        parsed[k] = json.loads(v)
+                    except (json.JSONDecodeError, TypeError):
+                        parsed[k] = v
+                out[record.name] = parsed
+        return out
+
+    def summary(self):
+        with open(self.path, "rb") as f:
+            return self._reader(f).get_summary()
+
+    def messages(self, topics: list[str] | None = None) -> Iterator[Message]:
+        """Messages of `topics` (all when None) in log-time order, decoded."""
+        with open(self.path, "rb") as f:
+            reader = self._reader(f)
+            for schema, channel, message in reader.iter_messages(topics=topics, log_time_order=True):
+                if channel.message_encoding == MessageEncoding.JSON:
+                    value: Any = json.loads(message.data)
+                else:
+                    value = _decode_proto(schema, message.data)
+                yield Message(channel.topic, message.log_time / NS, message.log_time, value)
+
+
+_PROTO_DECODERS: dict[tuple[str, bytes], Any] = {}
+
+
+def _decode_proto(schema, data: bytes):
+    key = (schema.name, bytes(schema.data))
+    dec = _PROTO_DECODERS.get(key)
+    if dec is None:
+        dec = DecoderFactory().decoder_for(MessageEncoding.Protobuf, schema)
+        _PROTO_DECODERS[key] = dec
+    return dec(data)
