@@ -56,7 +56,12 @@ def guarded(fn):
         except (IngestError, InputError, FileNotFoundError, IsADirectoryError, PermissionError) as e:
             fail(str(e))
         except ValueError as e:
+            if os.environ.get("GSLAM_DEBUG"):
+                raise
             fail(str(e))
+        except BrokenPipeError:  # output piped into e.g. `head`
+            sys.stderr.close()
+            raise typer.Exit(0) from None
         except KeyboardInterrupt:
             typer.secho("interrupted", fg=typer.colors.YELLOW, err=True)
             raise typer.Exit(130) from None
@@ -146,3 +151,102 @@ def info(
 
 def run() -> None:  # pragma: no cover
     app()
+
+
+def _load_config_file(path: Path | None) -> dict:
+    if path is None:
+        return {}
+    import tomllib
+
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: config file not found") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ValueError(f"{path}: not valid TOML ({e})") from None
+
+
+@app.command()
+@guarded
+def process(
+    input: Annotated[Path, typer.Argument(help="Input MCAP from `gslam ingest`.")],
+    output: Annotated[Path, typer.Argument(help="Result MCAP to write.")],
+    rrd: Annotated[Path | None, typer.Option("--rrd", help="Rerun recording to write (default: OUTPUT with .rrd).")] = None,
+    no_rrd: Annotated[bool, typer.Option("--no-rrd", help="Do not write a Rerun recording.")] = False,
+    particles: Annotated[int | None, typer.Option("--particles", "-N", help="Number of particles N.")] = None,
+    points: Annotated[int | None, typer.Option("--points", "-M", help="New points per observation M.")] = None,
+    seed: Annotated[int | None, typer.Option("--seed", help="Random seed.")] = None,
+    vehicle: Annotated[str | None, typer.Option("--vehicle", help="Vehicle preset: carpark or paper.")] = None,
+    config: Annotated[Path | None, typer.Option("--config", help="TOML file: [filter] options and run options.")] = None,
+    set_: Annotated[list[str] | None, typer.Option("--set", help="Filter option override, NAME=VALUE (repeatable).")] = None,
+    max_scans: Annotated[int | None, typer.Option("--max-scans", help="Stop after this many scans.")] = None,
+) -> None:
+    """Run G-SLAM over an input MCAP; write the result MCAP and a Rerun recording."""
+    from gslam.config import FilterConfig
+    from pipelines.process import process as run_process
+    from pipelines.runner import RunConfig
+
+    data = _load_config_file(config)
+    filter_opts = dict(data.pop("filter", {}))
+    for item in set_ or []:
+        if "=" not in item:
+            raise ValueError(f"--set expects NAME=VALUE, got {item!r}")
+        k, v = item.split("=", 1)
+        try:
+            filter_opts[k.strip()] = json.loads(v)
+        except json.JSONDecodeError:
+            filter_opts[k.strip()] = v
+    for k, v in (("particles", particles), ("points_per_observation", points), ("seed", seed)):
+        if v is not None:
+            filter_opts[k] = v
+    run_opts = {k: v for k, v in data.items() if k in ("vehicle", "init_heading_window_s", "map_snapshot_every", "max_scans")}
+    unknown = sorted(set(data) - set(run_opts))
+    if unknown:
+        raise ValueError(f"{config}: unknown option(s) {', '.join(unknown)}")
+    if vehicle is not None:
+        run_opts["vehicle"] = vehicle
+    if max_scans is not None:
+        run_opts["max_scans"] = max_scans
+    cfg = RunConfig(filter=FilterConfig.from_dict(filter_opts), **run_opts)
+    if cfg.vehicle is not None:
+        from gslam.vehicle import vehicle_preset
+
+        vehicle_preset(cfg.vehicle)
+    rrd_path = None if no_rrd else (rrd or output.with_suffix(".rrd"))
+    with progress_bar("process") as bar:
+        task = bar.add_task("G-SLAM", total=None, rate="")
+
+        def progress(done: int, total: int, step_ms: float) -> None:
+            if done % 5 == 0 or done == total:
+                elapsed = bar.tasks[task].elapsed or 1e-9
+                bar.update(task, completed=done, total=total, rate=f"{done / elapsed:.0f} scans/s")
+
+        summary = run_process(input, output, rrd_path, cfg, progress, command=" ".join(["gslam", *sys.argv[1:]]))
+    typer.echo(
+        f"{summary.steps} steps of {summary.scans_in_log} scans; final map {summary.final_map_points} points; "
+        f"{summary.ms_per_step_filter_median:.1f} ms per step (filter), {summary.ms_per_step_median:.1f} ms end to end; "
+        f"real-time factor {summary.real_time_factor:.1f}"
+    )
+    typer.echo(f"wrote {summary.output}")
+    if summary.rrd is not None:
+        typer.echo(f"wrote {summary.rrd}  (open it with: rerun {summary.rrd})")
+
+
+@app.command("eval")
+@guarded
+def evaluate(
+    result: Annotated[Path, typer.Argument(help="Result MCAP from `gslam process`.")],
+    reference: Annotated[Path | None, typer.Option("--reference", help="Input MCAP (default: from the result's metadata).")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Accuracy and speed metrics of a result (GPS error, pole map error, relations, time per step)."""
+    from pipelines.evaluate import evaluate_result
+
+    metrics = evaluate_result(result, reference)
+    if as_json:
+        typer.echo(json.dumps(metrics, indent=2))
+        return
+    for k, v in metrics.items():
+        shown = "n/a" if v is None else (f"{v:.4g}" if isinstance(v, float) else str(v))
+        typer.echo(f"{k:<28} {shown}")

@@ -1,0 +1,162 @@
+"""Filter configuration: every open point of the paper is a named option (docs/CHOICES.md)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+from typing import Any, Literal
+
+ObservationUnit = Literal["beam", "scan"]
+MapUpdate = Literal["global", "observed", "binary"]
+Weighting = Literal["sum", "beam_sum", "likelihood_field"]
+PriorInterpolation = Literal["nearest_mean", "idw", "constant"]
+Proposal = Literal["motion", "scan_match"]
+UpdateSchedule = Literal["every_scan", "travel"]
+ControlNoise = Literal["per_sample", "per_interval"]
+
+
+@dataclass
+class FilterConfig:
+    """G-SLAM options, with defaults chosen by measurement on the Car Park log (docs/CHOICES.md).
+
+    Paper-literal settings: observation_unit "scan", map_update "global", prune_relative False,
+    weighting "sum", proposal "motion", update_schedule "every_scan" (see `literal()`).
+    """
+
+    particles: int = 8
+    """N, the number of particles."""
+    points_per_observation: int = 10
+    """M, new map points drawn per observation (per return, or per scan: see observation_unit)."""
+    seed: int = 0
+    """Seed of the numpy Generator behind every random draw."""
+
+    # Open point 1: what an "observation" is.
+    observation_unit: ObservationUnit = "beam"
+    """"beam": M points around every return; "scan": M points per scan, each around a random return."""
+
+    # Sensor noise (R) and the point likelihood q (eq. 6; open point 2).
+    range_sigma_m: float = 0.10
+    """Range noise of the laser (sd of the draw of new points, R)."""
+    bearing_sigma_rad: float = math.radians(0.25)
+    """Bearing noise of the laser (sd of the draw of new points, R)."""
+    hit_sigma_m: float = 0.20
+    """Width of the range term of q for existing points (pose uncertainty included)."""
+    hit_ratio: float = 3.0
+    """q of a point at a return, relative to an unobserved point (q = 1)."""
+    free_ratio: float = 0.3
+    """q of a point in observed free space (in front of the return), relative to an unobserved point."""
+
+    # Open point 3: the semantic of p and the pruning threshold.
+    map_update: MapUpdate = "observed"
+    """"global": eq. 7 over all the particle's points (literal); "observed": eq. 7 over the points this
+    scan observes, so unobserved points keep their p; "binary": per-point Bayes in log-odds."""
+    prune_threshold: float = 0.25
+    """p_thr. With prune_relative, a fraction of the mean p of the particle's map."""
+    prune_relative: bool = True
+    """Compare p with prune_threshold x mean p (True) or with prune_threshold itself (literal)."""
+    max_points_per_cell: int = 3
+    """Density control: keep at most this many points (the most probable) per cell; 0 = off."""
+    cell_size_m: float = 0.25
+    """Cell size of the density control."""
+
+    # Open point 4: the importance weight.
+    weighting: Weighting = "likelihood_field"
+    """"sum": w = sum_j q_j p_j (literal); "beam_sum": product over returns of the per-beam sum;
+    "likelihood_field": product over returns of the best-matching map point's Gaussian score."""
+    weight_sigma_m: float = 0.30
+    """Distance scale of the likelihood-field and beam-sum weights."""
+    weight_floor: float = 0.05
+    """Per-return likelihood floor (outliers, unmapped space)."""
+    weight_tempering: float = 0.1
+    """Exponent on the product over returns (returns are not independent)."""
+    weight_beam_stride: int = 2
+    """Use every k-th return in the weight and the scan matcher."""
+
+    # Open point 5: prior of new points.
+    prior_interpolation: PriorInterpolation = "nearest_mean"
+    """"nearest_mean": mean p of the k nearest points within prior_radius_m; "idw": inverse distance
+    weighting of those; "constant": always p0."""
+    prior_neighbours: int = 4
+    prior_radius_m: float = 0.5
+    prior_p0: float = 0.5
+    """Prior where no point lies within the radius: a probability for "binary", else x mean p."""
+
+    # Open point 6: proposal.
+    proposal: Proposal = "scan_match"
+    """"motion": sample the motion model (the paper); "scan_match": match the scan against the
+    particle's own point map, then sample around the match."""
+    match_iterations: int = 6
+    match_max_distance_m: float = 1.0
+    proposal_sigma_xy_m: float = 0.03
+    proposal_sigma_phi_rad: float = math.radians(0.3)
+
+    # Open point 7: when to update.
+    update_schedule: UpdateSchedule = "every_scan"
+    """"every_scan" (the paper) or "travel": only after min_travel_m or min_turn_rad since the last update."""
+    min_travel_m: float = 1.0
+    min_turn_rad: float = 0.5
+
+    # Resampling.
+    resample_threshold: float = 0.5
+    """Resample (RSR) when the effective sample size falls below this fraction of N."""
+
+    # Motion noise.
+    control_noise: ControlNoise = "per_interval"
+    """"per_sample": fresh noise at every odometry sample; "per_interval": one draw per scan interval."""
+    speed_sigma_mps: float = 0.10
+    speed_sigma_rel: float = 0.05
+    steering_sigma_rad: float = math.radians(1.0)
+    odom_alpha: tuple[float, float, float, float] = (0.05, 0.01, 0.05, 0.01)
+    """Standard odometry model noise (rot-rot, rot-trans, trans-trans, trans-rot)."""
+    initial_sigma_xy_m: float = 0.0
+    initial_sigma_phi_rad: float = 0.0
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        if self.particles < 1:
+            raise ValueError(f"particles must be at least 1, got {self.particles}")
+        if self.points_per_observation < 1:
+            raise ValueError(f"points per observation must be at least 1, got {self.points_per_observation}")
+        choices = {
+            "observation_unit": ("beam", "scan"), "map_update": ("global", "observed", "binary"),
+            "weighting": ("sum", "beam_sum", "likelihood_field"),
+            "prior_interpolation": ("nearest_mean", "idw", "constant"), "proposal": ("motion", "scan_match"),
+            "update_schedule": ("every_scan", "travel"), "control_noise": ("per_sample", "per_interval"),
+        }
+        for name, allowed in choices.items():
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}")
+        if not 0 < self.resample_threshold <= 1:
+            raise ValueError("resample_threshold must be in (0, 1]")
+        for name in ("range_sigma_m", "hit_sigma_m", "weight_sigma_m", "cell_size_m", "prior_radius_m"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"{name} must be positive")
+
+    def as_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["odom_alpha"] = list(self.odom_alpha)
+        return d
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> FilterConfig:
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"unknown filter option(s): {', '.join(unknown)}")
+        data = dict(data)
+        if "odom_alpha" in data:
+            data["odom_alpha"] = tuple(data["odom_alpha"])
+        return cls(**data)
+
+    @classmethod
+    def literal(cls, **overrides: Any) -> FilterConfig:
+        """The paper-literal reading of every open point."""
+        base = dict(
+            observation_unit="scan", map_update="global", prune_relative=False, prune_threshold=1e-6,
+            max_points_per_cell=0, weighting="sum", proposal="motion", update_schedule="every_scan",
+            prior_interpolation="idw", free_ratio=0.01,
+        )
+        base.update(overrides)
+        return cls(**base)

@@ -1,0 +1,161 @@
+"""The G-SLAM particle filter: the paper's six steps for one scan, vectorised over particles and points."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .config import FilterConfig
+from .motion import wrap_angle
+from .pointmap import (
+    FlatMaps,
+    PointMap,
+    draw_new_points,
+    interpolate_prior,
+    point_likelihood_ratio,
+    project,
+    prune_and_thin,
+    update_probabilities,
+)
+from .proposal import match_scan
+from .resampling import effective_sample_size, normalise_log_weights, residual_systematic_resampling
+from .scan import Scan
+from .trajectory import AncestryTree
+from .weights import log_weight_beam_sum, log_weight_likelihood_field, log_weight_sum
+
+Predictor = Callable[[np.ndarray, np.random.Generator], np.ndarray]
+"""Step 1's motion model: (poses (N,3), rng) -> sampled poses (N,3)."""
+
+
+@dataclass
+class StepResult:
+    t_s: float
+    poses: np.ndarray  # (N, 3) particle poses after the step (before resampling)
+    weights: np.ndarray  # (N,) normalised importance weights
+    effective_sample_size: float
+    resampled: bool
+    updated: bool  # False when the update schedule skipped this scan (prediction only)
+    best: int
+    best_pose: np.ndarray
+    map_points: int  # in the best particle's map
+    map_points_total: int
+    matched: int  # particles whose scan match succeeded
+
+
+class GSlamFilter:
+    """N particles, each a pose, a pose history (shared ancestry tree) and a point map."""
+
+    def __init__(self, cfg: FilterConfig, initial_pose: np.ndarray) -> None:
+        self.cfg = cfg
+        self.rng = np.random.default_rng(cfg.seed)
+        n = cfg.particles
+        self.poses = np.tile(np.asarray(initial_pose, dtype=float), (n, 1))
+        if cfg.initial_sigma_xy_m > 0 or cfg.initial_sigma_phi_rad > 0:
+            self.poses[:, :2] += self.rng.standard_normal((n, 2)) * cfg.initial_sigma_xy_m
+            self.poses[:, 2] = wrap_angle(self.poses[:, 2] + self.rng.standard_normal(n) * cfg.initial_sigma_phi_rad)
+        self.weights = np.full(n, 1.0 / n)
+        self.maps: list[PointMap] = [PointMap.empty()] * n  # one shared empty map (copy-on-write)
+        self.tree = AncestryTree()
+        self.steps = 0
+        self._last_update_pose: np.ndarray | None = None
+
+    # ------------------------------------------------------------------------------------------
+    def best_particle(self) -> int:
+        return int(np.argmax(self.weights))
+
+    def best_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.tree.trajectory(self.best_particle())
+
+    def _due(self) -> bool:
+        if self.cfg.update_schedule == "every_scan" or self._last_update_pose is None:
+            return True
+        best = self.poses[self.best_particle()]
+        last = self._last_update_pose
+        return bool(
+            np.hypot(best[0] - last[0], best[1] - last[1]) >= self.cfg.min_travel_m
+            or abs(wrap_angle(best[2] - last[2])) >= self.cfg.min_turn_rad
+        )
+
+    # ------------------------------------------------------------------------------------------
+    def step(self, scan: Scan, predict: Predictor | None = None) -> StepResult:
+        """One G-SLAM step for scan z_t after the controls since the previous scan."""
+        cfg, n = self.cfg, self.cfg.particles
+        # 1. Draw s_t^i from the motion model.
+        if predict is not None:
+            self.poses = predict(self.poses, self.rng)
+        if not self._due():
+            self.tree.record(scan.t_s, self.poses)
+            self.steps += 1
+            best = self.best_particle()
+            return StepResult(scan.t_s, self.poses.copy(), self.weights.copy(), effective_sample_size(self.weights),
+                              False, False, best, self.poses[best].copy(), len(self.maps[best]),
+                              sum(len(m) for m in self.maps), 0)
+        matched = 0
+        if cfg.proposal == "scan_match":
+            matched = self._scan_match_proposal(scan)
+
+        flat = FlatMaps.of(self.maps)
+        # 2. Generate new points around the returns (drawn z_hat, inverse of g, interpolated prior).
+        new_owner, new_xy, new_q, _ = draw_new_points(self.poses, scan, cfg, self.rng)
+        new_prior = interpolate_prior(self.maps, new_owner, new_xy, cfg) if len(new_owner) else np.empty(0)
+        # 3. q of existing points (eq. 6) and the update of eq. 7 over existing and new points.
+        r, j, z, observed = project(flat, self.poses, scan)
+        q = point_likelihood_ratio(r, z, observed, cfg)
+        all_q = np.concatenate([q, new_q])
+        all_prev = np.concatenate([flat.p, new_prior])
+        all_owner = np.concatenate([flat.owner, new_owner])
+        all_observed = np.concatenate([observed, np.ones(len(new_q), dtype=bool)])
+        order = np.argsort(all_owner, kind="stable")
+        all_xy = np.concatenate([flat.xy, new_xy])[order]
+        all_q, all_prev, all_owner, all_observed = all_q[order], all_prev[order], all_owner[order], all_observed[order]
+        # 5. Importance factors (computed from q and p_{t-1}, before the map changes).
+        if cfg.weighting == "sum":
+            log_like = log_weight_sum(all_q, all_prev, all_owner, n)
+        elif cfg.weighting == "beam_sum":
+            log_like = log_weight_beam_sum(flat, r, j, z, observed, scan, n, cfg)
+        else:
+            log_like = log_weight_likelihood_field(self.maps, self.poses, scan, cfg)
+        if flat.p.size == 0:
+            log_like = np.zeros(n)  # first scan: nothing to compare with
+        p_new = update_probabilities(all_prev, all_q, all_owner, all_observed, n, cfg)
+        # 4. Remove meaningless points (and thin dense cells).
+        pruned = prune_and_thin(FlatMaps(all_xy, p_new, all_owner), n, cfg)
+        self.maps = pruned.split(n)
+        # 6. Weights, effective sample size, resampling (RSR).
+        with np.errstate(divide="ignore"):
+            self.weights = normalise_log_weights(np.log(self.weights) + log_like)
+        ess = effective_sample_size(self.weights)
+        best = self.best_particle()
+        result = StepResult(
+            scan.t_s, self.poses.copy(), self.weights.copy(), ess, False, True, best, self.poses[best].copy(),
+            len(self.maps[best]), len(pruned.p), matched,
+        )
+        self.tree.record(scan.t_s, self.poses)
+        if ess < cfg.resample_threshold * n:
+            parents = residual_systematic_resampling(self.weights, self.rng)
+            self.poses = self.poses[parents]
+            self.maps = [self.maps[a] for a in parents]  # shared by reference: copy-on-write
+            self.tree.continue_from(parents)
+            self.weights = np.full(n, 1.0 / n)
+            result.resampled = True
+        self._last_update_pose = self.poses[self.best_particle()].copy()
+        self.steps += 1
+        return result
+
+    def _scan_match_proposal(self, scan: Scan) -> int:
+        cfg = self.cfg
+        _, z, b = scan.return_polar()
+        sel = slice(None, None, cfg.weight_beam_stride)
+        pts = np.column_stack([z[sel] * np.cos(b[sel]), z[sel] * np.sin(b[sel])])
+        matched = 0
+        for i, m in enumerate(self.maps):  # per particle: ICP over its returns, vectorised inside
+            pose, ok = match_scan(m, self.poses[i], pts, cfg)
+            if ok:
+                matched += 1
+                noise = self.rng.standard_normal(3) * [cfg.proposal_sigma_xy_m, cfg.proposal_sigma_xy_m,
+                                                         cfg.proposal_sigma_phi_rad]
+                self.poses[i] = pose + noise
+                self.poses[i, 2] = wrap_angle(self.poses[i, 2])
+        return matched

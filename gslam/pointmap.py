@@ -1,0 +1,209 @@
+"""The probabilistic point map: points theta_k with probability p_k, and steps 2 to 4 of the algorithm.
+
+Each particle's map is an immutable `PointMap`; after resampling, particles share maps by reference
+and each step writes new arrays (copy-on-write). The step works on all particles' points at once:
+the maps are concatenated with an `owner` index, so projection, q, the update of eq. 7, generation,
+pruning and density control are vectorised over particles, points and beams.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .config import FilterConfig
+from .scan import Scan, inverse_measure, measure
+
+
+@dataclass(eq=False)
+class PointMap:
+    """Points (K, 2) and their probabilities (K,). Arrays are read-only; the KD-tree is built lazily."""
+
+    xy: np.ndarray
+    p: np.ndarray
+    _tree: cKDTree | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        self.xy.flags.writeable = False
+        self.p.flags.writeable = False
+
+    @classmethod
+    def empty(cls) -> PointMap:
+        return cls(np.empty((0, 2)), np.empty(0))
+
+    def __len__(self) -> int:
+        return len(self.p)
+
+    @property
+    def tree(self) -> cKDTree | None:
+        if self._tree is None and len(self.p):
+            self._tree = cKDTree(self.xy)
+        return self._tree
+
+    @property
+    def mean_p(self) -> float:
+        return float(self.p.mean()) if len(self.p) else 1.0
+
+
+@dataclass
+class FlatMaps:
+    """All particles' points concatenated: owner[k] is the particle of point k (sorted)."""
+
+    xy: np.ndarray
+    p: np.ndarray
+    owner: np.ndarray
+
+    @classmethod
+    def of(cls, maps: list[PointMap]) -> FlatMaps:
+        sizes = np.array([len(m) for m in maps])
+        if sizes.sum() == 0:
+            return cls(np.empty((0, 2)), np.empty(0), np.empty(0, dtype=np.int64))
+        return cls(
+            np.concatenate([m.xy for m in maps]), np.concatenate([m.p for m in maps]),
+            np.repeat(np.arange(len(maps)), sizes),
+        )
+
+    def split(self, n: int) -> list[PointMap]:
+        bounds = np.searchsorted(self.owner, np.arange(n + 1))
+        return [PointMap(self.xy[a:b].copy(), self.p[a:b].copy()) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+
+
+def point_likelihood_ratio(range_m: np.ndarray, measured_m: np.ndarray, observed: np.ndarray, cfg: FilterConfig) -> np.ndarray:
+    """q_k (eq. 6) relative to an unobserved point, for points at `range_m` on beams that measured `measured_m`.
+
+    Near the return: up to hit_ratio (Gaussian in range, width hit_sigma_m). In front of it (observed free
+    space): free_ratio. Behind it (occluded), outside the field of view or beyond the maximum range: 1.
+    """
+    d = range_m - measured_m
+    g = np.exp(-0.5 * np.square(d / cfg.hit_sigma_m))
+    q = cfg.free_ratio + (cfg.hit_ratio - cfg.free_ratio) * g
+    behind = d > 0
+    q = np.where(behind, 1.0 + (cfg.hit_ratio - 1.0) * g, q)
+    return np.where(observed, q, 1.0)
+
+
+def project(flat: FlatMaps, poses: np.ndarray, scan: Scan) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Project every point into its owner's scan: (range, beam index, measured range on it, observed mask).
+
+    A point is observed when it falls inside the field of view and closer than the maximum range. Beams
+    without a return measured free space up to the maximum range.
+    """
+    geom = scan.geometry
+    r, b = measure(poses[flat.owner], flat.xy)
+    j = np.rint((b - geom.start_angle_rad) / geom.angle_increment_rad).astype(np.int64)
+    in_fov = (j >= 0) & (j < geom.beam_count)
+    j = np.clip(j, 0, geom.beam_count - 1)
+    ranges = np.where(scan.returns, scan.ranges_m, geom.max_range_m)
+    z = ranges[j]
+    observed = in_fov & (r < geom.max_range_m)
+    return r, j, z, observed
+
+
+def interpolate_prior(maps: list[PointMap], owner: np.ndarray, xy: np.ndarray, cfg: FilterConfig) -> np.ndarray:
+    """p_hat_{t-1} of new points from their particle's existing points (open point 5).
+
+    Where no existing point lies within prior_radius_m: prior_p0 (a probability for the binary map,
+    else a multiple of the particle's mean p).
+    """
+    prior = np.empty(len(xy))
+    for i, m in enumerate(maps):  # per particle: one vectorised KD-tree query each
+        sel = owner == i
+        if not sel.any():
+            continue
+        default = cfg.prior_p0 if cfg.map_update == "binary" else cfg.prior_p0 * m.mean_p
+        if cfg.prior_interpolation == "constant" or len(m) == 0:
+            prior[sel] = default
+            continue
+        k = min(cfg.prior_neighbours, len(m))
+        dist, idx = m.tree.query(xy[sel], k=k, distance_upper_bound=cfg.prior_radius_m)
+        dist = dist.reshape(len(dist), -1)
+        idx = idx.reshape(len(idx), -1)
+        found = np.isfinite(dist)
+        pk = np.where(found, m.p[np.minimum(idx, len(m) - 1)], 0.0)
+        if cfg.prior_interpolation == "idw":
+            wk = np.where(found, 1.0 / np.maximum(dist, 1e-3), 0.0)
+        else:
+            wk = found.astype(float)
+        wsum = wk.sum(axis=1)
+        prior[sel] = np.where(wsum > 0, (wk * pk).sum(axis=1) / np.maximum(wsum, 1e-300), default)
+    return prior
+
+
+def draw_new_points(
+    poses: np.ndarray, scan: Scan, cfg: FilterConfig, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Draw z_hat ~ N(z, R) around the returns and map them through the inverse of g (step 2).
+
+    Returns (owner, xy, q_hat relative to unobserved, return index) for all particles.
+    """
+    _, z, b = scan.return_polar()
+    n = len(poses)
+    if len(z) == 0:
+        return np.empty(0, dtype=np.int64), np.empty((0, 2)), np.empty(0), np.empty(0, dtype=np.int64)
+    m = cfg.points_per_observation
+    if cfg.observation_unit == "beam":
+        ret = np.tile(np.repeat(np.arange(len(z)), m), n)
+        owner = np.repeat(np.arange(n), len(z) * m)
+    else:
+        ret = rng.integers(0, len(z), size=n * m)
+        owner = np.repeat(np.arange(n), m)
+    dr = rng.standard_normal(len(ret)) * cfg.range_sigma_m
+    db = rng.standard_normal(len(ret)) * cfg.bearing_sigma_rad
+    z_hat = z[ret] + dr
+    xy = inverse_measure(poses[owner], z_hat, b[ret] + db)
+    observed = np.ones(len(ret), dtype=bool)
+    q_hat = point_likelihood_ratio(z_hat, z[ret], observed, cfg)
+    return owner, xy, q_hat, ret
+
+
+def segment_sum(values: np.ndarray, owner: np.ndarray, n: int) -> np.ndarray:
+    return np.bincount(owner, weights=values, minlength=n)
+
+
+def update_probabilities(
+    p_prev: np.ndarray, q: np.ndarray, owner: np.ndarray, observed: np.ndarray, n: int, cfg: FilterConfig
+) -> np.ndarray:
+    """The recursive update of eq. 7 (step 3), in the semantic cfg.map_update selects (open point 3).
+
+    global:   p_t^k = q_k p_{t-1}^k / sum_j q_j p_{t-1}^j over all the particle's points (literal eq. 7).
+    observed: the same sum over the points this scan observes, rescaled to keep their total mass, so
+              points out of view keep their p.
+    binary:   each p_k is the probability that theta_k is an obstacle: logit p += log q_k.
+    """
+    if cfg.map_update == "binary":
+        logit = np.log(p_prev) - np.log1p(-p_prev) + np.log(q)
+        return np.clip(1.0 / (1.0 + np.exp(-logit)), 1e-6, 1 - 1e-6)
+    qp = q * p_prev
+    if cfg.map_update == "global":
+        return qp / segment_sum(qp, owner, n)[owner]
+    obs = observed.astype(float)
+    mass_before = segment_sum(p_prev * obs, owner, n)
+    mass_after = segment_sum(qp * obs, owner, n)
+    scale = np.where(mass_after > 0, mass_before / np.maximum(mass_after, 1e-300), 1.0)
+    return np.where(observed, qp * scale[owner], p_prev)
+
+
+def prune_and_thin(flat: FlatMaps, n: int, cfg: FilterConfig) -> FlatMaps:
+    """Step 4: drop points with p < p_thr (optionally relative to the mean), then keep at most
+    max_points_per_cell points (the most probable) per cell, per particle."""
+    if cfg.prune_relative:
+        counts = np.bincount(flat.owner, minlength=n)
+        mean_p = segment_sum(flat.p, flat.owner, n) / np.maximum(counts, 1)
+        keep = flat.p >= cfg.prune_threshold * mean_p[flat.owner]
+    else:
+        keep = flat.p >= cfg.prune_threshold
+    xy, p, owner = flat.xy[keep], flat.p[keep], flat.owner[keep]
+    if cfg.max_points_per_cell > 0 and len(p):
+        cells = np.floor(xy / cfg.cell_size_m).astype(np.int64)
+        cells -= cells.min(axis=0)
+        span = int(cells[:, 1].max()) + 1
+        key = (owner.astype(np.int64) * (int(cells[:, 0].max()) + 1) + cells[:, 0]) * span + cells[:, 1]
+        order = np.lexsort((-p, key))
+        ks = key[order]
+        start = np.r_[0, np.flatnonzero(np.diff(ks)) + 1]
+        rank = np.arange(len(ks)) - np.repeat(start, np.diff(np.r_[start, len(ks)]))
+        chosen = np.sort(order[rank < cfg.max_points_per_cell])
+        xy, p, owner = xy[chosen], p[chosen], owner[chosen]
+    return FlatMaps(xy, p, owner)

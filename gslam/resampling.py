@@ -1,0 +1,43 @@
+"""Importance-weight normalisation, effective sample size, and Residual Systematic Resampling."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def normalise_log_weights(log_w: np.ndarray) -> np.ndarray:
+    """exp(log_w) / sum, computed stably; non-finite entries get zero weight (all non-finite: uniform)."""
+    log_w = np.asarray(log_w, dtype=float)
+    finite = np.isfinite(log_w)
+    if not finite.any():
+        return np.full(len(log_w), 1.0 / len(log_w))
+    w = np.where(finite, np.exp(log_w - log_w[finite].max()), 0.0)
+    return w / w.sum()
+
+
+def effective_sample_size(weights: np.ndarray) -> float:
+    """N_eff = 1 / sum w_i^2 for normalised weights."""
+    return float(1.0 / np.sum(np.square(weights)))
+
+
+def residual_systematic_resampling(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Residual Systematic Resampling (Bolic, Djuric & Hong 2004): indices of the parents.
+
+    For normalised weights w_1..w_N and one uniform draw u ~ U(0, 1/N):
+        k_i = floor((w_i - u) N) + 1;   u <- u + k_i / N - w_i
+    particle i is replicated k_i times; sum k_i = N. One pass, no sorting, one random number.
+    """
+    w = np.asarray(weights, dtype=float)
+    n = len(w)
+    u = rng.uniform(0.0, 1.0 / n)
+    counts = np.empty(n, dtype=np.int64)
+    for i in range(n):  # over particles (N <= a few hundred), not over points
+        k = int(np.floor((w[i] - u) * n)) + 1
+        k = max(k, 0)
+        counts[i] = k
+        u = u + k / n - w[i]
+    # Floating-point slack can leave the total one off; fix it on the heaviest particle.
+    diff = n - int(counts.sum())
+    if diff:
+        counts[int(np.argmax(w))] += diff
+    return np.repeat(np.arange(n), counts)

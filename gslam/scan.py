@@ -1,0 +1,64 @@
+"""A laser scan and the range-bearing measurement model g (eq. meas1) and its inverse."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .motion import wrap_angle
+
+
+@dataclass(frozen=True)
+class ScanGeometry:
+    """Beam k is at bearing start_angle_rad + k * angle_increment_rad in the sensor frame (x ahead)."""
+
+    beam_count: int
+    start_angle_rad: float
+    angle_increment_rad: float
+    max_range_m: float
+
+    @property
+    def bearings_rad(self) -> np.ndarray:
+        return self.start_angle_rad + self.angle_increment_rad * np.arange(self.beam_count)
+
+
+@dataclass(frozen=True)
+class Scan:
+    """One scan: ranges [m] per beam, +inf (or >= max range) where there was no return."""
+
+    t_s: float
+    ranges_m: np.ndarray
+    geometry: ScanGeometry
+
+    @property
+    def returns(self) -> np.ndarray:
+        """Mask of beams with a return (an observation of an obstacle)."""
+        return np.isfinite(self.ranges_m) & (self.ranges_m < self.geometry.max_range_m) & (self.ranges_m > 0)
+
+    def return_polar(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(beam index, range, bearing) of every return."""
+        idx = np.flatnonzero(self.returns)
+        return idx, self.ranges_m[idx], self.geometry.bearings_rad[idx]
+
+
+def measure(poses: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """g(s, theta) (eq. meas1): range and bearing of points `xy` seen from sensor poses `poses`.
+
+    poses and xy broadcast: poses (..., 3), xy (..., 2). Bearing is relative to the heading, wrapped.
+    """
+    dx = xy[..., 0] - poses[..., 0]
+    dy = xy[..., 1] - poses[..., 1]
+    return np.hypot(dx, dy), wrap_angle(np.arctan2(dy, dx) - poses[..., 2])
+
+
+def inverse_measure(poses: np.ndarray, range_m: np.ndarray, bearing_rad: np.ndarray) -> np.ndarray:
+    """The inverse of g: the point at range and bearing from the pose, (..., 2)."""
+    heading = poses[..., 2] + bearing_rad
+    return np.stack([poses[..., 0] + range_m * np.cos(heading), poses[..., 1] + range_m * np.sin(heading)], axis=-1)
+
+
+def transform_points(pose: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Sensor-frame points (K, 2) to the world frame for one pose (x, y, phi)."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    return np.column_stack([pose[0] + c * pts[:, 0] - s * pts[:, 1], pose[1] + s * pts[:, 0] + c * pts[:, 1]])

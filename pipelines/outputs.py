@@ -1,0 +1,160 @@
+"""Result writers: the output MCAP and the Rerun recording. Both write to a temporary file and move it
+into place on `finish()`, which also runs on interruption, so a result always holds the steps done."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gslam.filter import GSlamFilter
+from gslam.scan import ScanGeometry, transform_points
+
+from . import channels as ch
+from .mcapio import AtomicMcapWriter, to_ns
+from .runner import Step
+
+
+def probability_colors(p: np.ndarray) -> np.ndarray:
+    """RGBA uint8 colours from blue (low) through green to red (high) for p scaled to its maximum."""
+    if len(p) == 0:
+        return np.empty((0, 4), dtype=np.uint8)
+    v = np.clip(p / max(float(p.max()), 1e-300), 0.0, 1.0)
+    r = np.clip(2 * v - 0.5, 0, 1)
+    g = np.clip(1.5 - np.abs(4 * v - 2), 0, 1)
+    b = np.clip(1.5 - 2 * v, 0, 1)
+    return (np.column_stack([r, g, b, np.ones_like(v)]) * 255).astype(np.uint8)
+
+
+class McapResultWriter:
+    """Writes /slam/* channels (docs/CHANNELS.md) and the run's metadata."""
+
+    def __init__(self, path: Path, metadata: dict[str, dict[str, Any]], snapshot_every: int) -> None:
+        self.writer = AtomicMcapWriter(path)
+        for name, data in metadata.items():
+            self.writer.add_metadata(name, data)
+        self.snapshot_every = snapshot_every
+        self.last_ns = 0
+
+    def step(self, st: Step, flt: GSlamFilter) -> None:
+        r = st.result
+        ns = to_ns(st.event.t_s)
+        self.last_ns = ns
+        w = self.writer
+        w.write_proto(ch.SLAM_POSE, ch.pose_in_frame(st.event.stamp_s, *r.best_pose, ch.MAP_FRAME), ns)
+        w.write_proto(ch.SLAM_PARTICLES, ch.poses_in_frame(st.event.stamp_s, r.poses, ch.MAP_FRAME), ns)
+        w.write_json(ch.SLAM_STATS, "gslam.StepStats", ch.STATS_SCHEMA, {
+            "scan_index": st.event.index, "t_s": st.event.t_s, "effective_sample_size": r.effective_sample_size,
+            "resampled": r.resampled, "updated": r.updated, "map_points": r.map_points,
+            "map_points_total": r.map_points_total, "step_ms": st.step_ms, "best_particle": r.best,
+            "matched": r.matched,
+        }, ns)
+        if self.snapshot_every and st.event.index % self.snapshot_every == 0:
+            m = flt.maps[r.best]
+            w.write_proto(ch.SLAM_MAP, ch.point_cloud(st.event.stamp_s, m.xy, m.p), ns)
+
+    def finish(self, flt: GSlamFilter, result_meta: dict[str, Any]) -> Path:
+        best = flt.best_particle()
+        times, traj = flt.best_trajectory()
+        ns = self.last_ns
+        t_last = float(times[-1]) if len(times) else 0.0
+        m = flt.maps[best]
+        self.writer.write_proto(ch.SLAM_MAP_FINAL, ch.point_cloud(t_last, m.xy, m.p), ns)
+        self.writer.write_proto(ch.SLAM_TRAJECTORY, ch.poses_in_frame(t_last, traj, ch.MAP_FRAME), ns)
+        self.writer.add_metadata("result", result_meta)
+        return self.writer.finish()
+
+    def abort(self) -> None:
+        self.writer.abort()
+
+
+class RerunResultWriter:
+    """Writes a Rerun recording (.rrd) with a default blueprint, on the `scan` and `time` timelines."""
+
+    def __init__(self, path: Path, geometry: ScanGeometry, snapshot_every: int, t0_s: float,
+                 gps: np.ndarray | None, landmarks: np.ndarray | None, app_id: str = "gslam") -> None:
+        import rerun as rr
+
+        self.rr = rr
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+        self.rec = rr.RecordingStream(app_id)
+        self.rec.save(str(self.tmp), default_blueprint=self.blueprint())
+        self.geometry = geometry
+        self.snapshot_every = snapshot_every
+        self.t0_s = t0_s
+        self.bearings = geometry.bearings_rad
+        self.stats: dict[str, list[float]] = {k: [] for k in ("scan", "time", "ess", "map", "ms")}
+        self.online: list[np.ndarray] = []
+        self.finished = False
+        if gps is not None and len(gps):
+            self.rec.log("world/gps", rr.LineStrips2D([gps[:, 1:3]], colors=[[40, 200, 40]], radii=0.08), static=True)
+        if landmarks is not None and len(landmarks):
+            self.rec.log("world/landmarks", rr.Points2D(landmarks, colors=[[255, 200, 0]], radii=0.4,
+                                                        labels=[f"pole {i + 1}" for i in range(len(landmarks))]),
+                         static=True)
+
+    def blueprint(self):
+        import rerun.blueprint as rrb
+
+        return rrb.Blueprint(
+            rrb.Horizontal(
+                rrb.Spatial2DView(name="map", origin="world"),
+                rrb.Vertical(
+                    rrb.TimeSeriesView(name="effective sample size", origin="stats/effective_sample_size"),
+                    rrb.TimeSeriesView(name="map points", origin="stats/map_points"),
+                    rrb.TimeSeriesView(name="step time [ms]", origin="stats/step_ms"),
+                ),
+                column_shares=[3, 1],
+            ),
+            collapse_panels=True,
+        )
+
+    def step(self, st: Step, flt: GSlamFilter) -> None:
+        rr, rec, r = self.rr, self.rec, st.result
+        rec.set_time("scan", sequence=st.event.index)
+        rec.set_time("time", duration=st.event.t_s - self.t0_s)
+        ranges = st.event.ranges_m
+        ok = np.isfinite(ranges) & (ranges < self.geometry.max_range_m)
+        pts = np.column_stack([ranges[ok] * np.cos(self.bearings[ok]), ranges[ok] * np.sin(self.bearings[ok])])
+        rec.log("world/scan", rr.Points2D(transform_points(r.best_pose, pts), colors=[[255, 60, 200]], radii=0.06))
+        rec.log("world/particles", rr.Points2D(r.poses[:, :2], colors=[[255, 140, 0]], radii=0.12))
+        self.online.append(r.best_pose[:2].copy())
+        if self.snapshot_every and st.event.index % self.snapshot_every == 0:
+            self._log_map(flt.maps[r.best])
+        for key, value in (("scan", st.event.index), ("time", st.event.t_s - self.t0_s),
+                           ("ess", r.effective_sample_size), ("map", r.map_points), ("ms", st.step_ms)):
+            self.stats[key].append(value)
+
+    def _log_map(self, m) -> None:
+        self.rec.log("world/map", self.rr.Points2D(m.xy, colors=probability_colors(m.p), radii=0.07))
+
+    def finish(self, flt: GSlamFilter) -> Path:
+        if self.finished:
+            return self.path
+        rr, rec = self.rr, self.rec
+        if self.stats["scan"]:
+            idx = [rr.TimeColumn("scan", sequence=self.stats["scan"]),
+                   rr.TimeColumn("time", duration=self.stats["time"])]
+            for name, key in (("effective_sample_size", "ess"), ("map_points", "map"), ("step_ms", "ms")):
+                rec.send_columns(f"stats/{name}", indexes=idx, columns=rr.Scalars.columns(scalars=self.stats[key]))
+            rec.set_time("scan", sequence=self.stats["scan"][-1])
+            rec.set_time("time", duration=self.stats["time"][-1])
+            self._log_map(flt.maps[flt.best_particle()])
+            _, traj = flt.best_trajectory()
+            rec.log("world/trajectory", rr.LineStrips2D([traj[:, :2]], colors=[[230, 30, 30]], radii=0.1))
+            rec.log("world/online", rr.LineStrips2D([np.asarray(self.online)], colors=[[60, 120, 255]], radii=0.05))
+        rec.flush()
+        rec.disconnect()
+        os.replace(self.tmp, self.path)
+        self.finished = True
+        return self.path
+
+    def abort(self) -> None:
+        try:
+            self.rec.disconnect()
+        finally:
+            Path(self.tmp).unlink(missing_ok=True)

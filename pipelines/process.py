@@ -1,0 +1,129 @@
+"""`gslam process`: stream an input MCAP through the filter, write the result MCAP and Rerun recording."""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from gslam import __version__
+
+from . import channels as ch
+from .outputs import McapResultWriter, RerunResultWriter
+from .runner import RunConfig, SlamRunner
+from .source import InputLog
+
+
+@dataclass
+class ProcessSummary:
+    steps: int
+    scans_in_log: int
+    final_map_points: int
+    ms_per_step_median: float
+    ms_per_step_filter_median: float
+    wall_s: float
+    log_duration_s: float
+    interrupted: bool
+    output: Path
+    rrd: Path | None
+    step_ms: list[float] = field(default_factory=list, repr=False)
+
+    @property
+    def real_time_factor(self) -> float:
+        return self.log_duration_s / self.wall_s if self.wall_s > 0 else float("nan")
+
+
+def _landmarks(log: InputLog) -> np.ndarray | None:
+    msgs = log.read_all(ch.LANDMARKS_TRUTH)
+    if not msgs:
+        return None
+    return np.column_stack([msgs[0].value["x_m"], msgs[0].value["y_m"]])
+
+
+def process(
+    input_path: Path, output_path: Path, rrd_path: Path | None, cfg: RunConfig,
+    progress: Callable[[int, int, float], None] | None = None, command: str | None = None,
+) -> ProcessSummary:
+    """Run the filter over `input_path`. Ctrl-C or an error mid-run still finishes both outputs with the
+    steps done so far (the error is re-raised after)."""
+    log = InputLog(input_path)
+    runner = SlamRunner(log, cfg)
+    metadata = {
+        "gslam": {"version": __version__, "command": command or " ".join(sys.argv), "method": "gslam"},
+        "config": cfg.as_dict(),
+        "input": {"path": str(Path(input_path).resolve()), "dataset": log.meta.get("dataset", {}).get("name", ""),
+                  "sensor": log.meta.get("sensor", {}), "vehicle": log.meta.get("vehicle", {})},
+        "initialisation": {"pose": None if runner.initial_pose is None else runner.initial_pose.tolist(),
+                           "t_s": runner.t_init_s, "heading_window_s": cfg.init_heading_window_s},
+    }
+    mcap_out = McapResultWriter(output_path, metadata, cfg.map_snapshot_every)
+    rrd_out = None
+    try:
+        if rrd_path is not None:
+            rrd_out = RerunResultWriter(rrd_path, log.geometry, cfg.map_snapshot_every, log.start_s,
+                                        log.gps_array(), _landmarks(log))
+    except BaseException:
+        mcap_out.abort()
+        raise
+    total = log.scan_count if cfg.max_scans is None else min(cfg.max_scans, log.scan_count)
+    step_ms: list[float] = []
+    filter_ms: list[float] = []
+    interrupted = False
+    error: BaseException | None = None
+    t_start = time.perf_counter()
+    first_t = last_t = None
+    t_prev = t_start
+    try:
+        for st in runner.steps():
+            mcap_out.step(st, runner.filter)
+            if rrd_out is not None:
+                rrd_out.step(st, runner.filter)
+            now = time.perf_counter()
+            step_ms.append((now - t_prev) * 1e3)
+            t_prev = now
+            filter_ms.append(st.step_ms)
+            first_t = st.event.t_s if first_t is None else first_t
+            last_t = st.event.t_s
+            if progress is not None:
+                progress(st.event.index + 1, total, st.step_ms)
+    except KeyboardInterrupt as e:
+        interrupted = True
+        error = e
+    except Exception as e:
+        interrupted = True
+        error = e
+    wall = time.perf_counter() - t_start
+    flt = runner.filter
+    summary = ProcessSummary(
+        steps=len(filter_ms), scans_in_log=log.scan_count,
+        final_map_points=len(flt.maps[flt.best_particle()]),
+        ms_per_step_median=float(np.median(step_ms)) if step_ms else float("nan"),
+        ms_per_step_filter_median=float(np.median(filter_ms)) if filter_ms else float("nan"),
+        wall_s=wall, log_duration_s=(last_t - first_t) if first_t is not None else 0.0,
+        interrupted=interrupted, output=Path(output_path), rrd=Path(rrd_path) if rrd_path else None,
+        step_ms=filter_ms,
+    )
+    result_meta = {
+        "steps": summary.steps, "interrupted": interrupted, "error": None if error is None else repr(error),
+        "ms_per_step_median": summary.ms_per_step_median,
+        "ms_per_step_filter_median": summary.ms_per_step_filter_median,
+        "wall_s": wall, "log_duration_s": summary.log_duration_s, "real_time_factor": summary.real_time_factor,
+        "final_map_points": summary.final_map_points, "particles": cfg.filter.particles,
+        "points_per_observation": cfg.filter.points_per_observation,
+    }
+    try:
+        mcap_out.finish(flt, result_meta)
+        if rrd_out is not None:
+            rrd_out.finish(flt)
+    except BaseException:
+        mcap_out.abort()
+        if rrd_out is not None:
+            rrd_out.abort()
+        raise
+    if error is not None:
+        raise error
+    return summary
