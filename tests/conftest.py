@@ -1,0 +1,44 @@
+"""Shared fixtures: the real datasets in ../shared/datasets (skipped with a reason when absent, except
+under CI=true where a missing dataset fails the run), and ingested MCAPs cached per session."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DATASETS = Path(os.environ.get("GSLAM_DATASETS", ROOT.parent / "shared" / "datasets"))
+CARPARK = DATASETS / "carpark"
+VICTORIA = DATASETS / "victoria_park"
+MIT = DATASETS / "freiburg" / "mit-csail.clf.gz"
+INTEL = DATASETS / "freiburg" / "intel.clf.gz"
+
+
+def require(path: Path) -> Path:
+    """The dataset path, or skip with a reason (fail under CI, where the data must be there)."""
+    if not path.exists():
+        message = f"dataset not found: {path} (the shared datasets live in ../shared/datasets)"
+        if os.environ.get("CI", "").lower() == "true":
+            pytest.fail(message + "; under CI the data must be present")
+        pytest.skip(message)
+    return path
+
+
+@pytest.fixture(scope="session")
+def carpark_mcap(tmp_path_factory) -> Path:
+    from ingest import ingest
+
+    out = tmp_path_factory.mktemp("carpark") / "carpark.mcap"
+    ingest(require(CARPARK), out)
+    return out
+
+
+@pytest.fixture(scope="session")
+def mit_mcap(tmp_path_factory) -> Path:
+    from ingest import ingest
+
+    out = tmp_path_factory.mktemp("mit") / "mit.mcap"
+    ingest(require(MIT), out)
+    return out
