@@ -60,14 +60,14 @@ class FilterConfig:
     """Cell size of the density control."""
 
     # Open point 4: the importance weight.
-    weighting: Weighting = "likelihood_field"
+    weighting: Weighting = "beam_sum"
     """"sum": w = sum_j q_j p_j (literal); "beam_sum": product over returns of the per-beam sum;
     "likelihood_field": product over returns of the best-matching map point's Gaussian score."""
-    weight_sigma_m: float = 0.30
+    weight_sigma_m: float = 0.20
     """Distance scale of the likelihood-field and beam-sum weights."""
     weight_floor: float = 0.05
     """Per-return likelihood floor (outliers, unmapped space)."""
-    weight_tempering: float = 0.1
+    weight_tempering: float = 0.3
     """Exponent on the product over returns (returns are not independent)."""
     weight_beam_stride: int = 2
     """Use every k-th return in the weight and the scan matcher."""
@@ -82,7 +82,7 @@ class FilterConfig:
     """Prior where no point lies within the radius: a probability for "binary", else x mean p."""
 
     # Open point 6: proposal.
-    proposal: Proposal = "scan_match"
+    proposal: Proposal = "motion"
     """"motion": sample the motion model (the paper); "scan_match": match the scan against the
     particle's own point map, then sample around the match."""
     match_iterations: int = 6

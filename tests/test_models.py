@@ -1,0 +1,217 @@
+"""Motion and measurement models, resampling, the map update on a tiny map, determinism."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from gslam.config import FilterConfig
+from gslam.filter import GSlamFilter
+from gslam.initialisation import fit_initial_heading
+from gslam.metrics import align_se2, gps_mean_error, gps_rmse_aligned, relations_error, relative_pose
+from gslam.motion import ackermann_step, apply_odometry, integrate_ackermann, odometry_delta
+from gslam.pointmap import FlatMaps, PointMap, point_likelihood_ratio, prune_and_thin, update_probabilities
+from gslam.resampling import effective_sample_size, normalise_log_weights, residual_systematic_resampling
+from gslam.scan import Scan, ScanGeometry, inverse_measure, measure
+from gslam.trajectory import AncestryTree
+from gslam.vehicle import VEHICLE_PRESETS, vehicle_preset
+
+CARPARK = VEHICLE_PRESETS["carpark"]
+
+
+def test_ackermann_straight_and_hand_computed_turn():
+    out = ackermann_step(np.array([[0.0, 0.0, 0.0]]), 2.0, 0.0, 0.5, CARPARK)
+    np.testing.assert_allclose(out, [[1.0, 0.0, 0.0]])
+    # Hand computation, paper eq. kinem: L 2.83, H 0.76, a 3.78, b 0.5, ve 2, alpha 0.1, dt 0.1, phi 0.3.
+    ve, al, dt, phi = 2.0, 0.1, 0.1, 0.3
+    vc = ve / (1 - math.tan(al) * 0.76 / 2.83)
+    x = dt * (vc * math.cos(phi) - vc / 2.83 * math.tan(al) * (3.78 * math.sin(phi) + 0.5 * math.cos(phi)))
+    y = dt * (vc * math.sin(phi) + vc / 2.83 * math.tan(al) * (3.78 * math.cos(phi) - 0.5 * math.sin(phi)))
+    th = phi + dt * vc / 2.83 * math.tan(al)
+    out = ackermann_step(np.array([[0.0, 0.0, phi]]), ve, al, dt, CARPARK)
+    np.testing.assert_allclose(out[0], [x, y, th], rtol=1e-12)
+
+
+def test_paper_preset_and_unknown_preset():
+    p = vehicle_preset("paper")
+    assert (p.wheelbase_m, p.encoder_offset_m, p.laser_x_m, p.laser_y_m) == (2.75, 0.74, 3.25, 0.5)
+    with pytest.raises(ValueError, match="unknown vehicle preset"):
+        vehicle_preset("tank")
+
+
+def test_integrate_uses_every_sample_with_zero_order_hold():
+    controls = np.array([[0.0, 1.0, 0.0], [1.0, 2.0, 0.0], [2.0, 0.0, 0.0]])
+    out = integrate_ackermann(np.zeros((1, 3)), controls, 2.5, 0.5, CARPARK)
+    np.testing.assert_allclose(out[0], [0.5 * 1.0 + 1.0 * 2.0, 0.0, 0.0])
+
+
+def test_noise_per_interval_is_seeded_and_spreads_particles():
+    controls = np.array([[0.0, 2.0, 0.05]])
+    a = integrate_ackermann(np.zeros((50, 3)), controls, 1.0, 0.0, CARPARK, np.random.default_rng(1), 0.1, 0.05, 0.02)
+    b = integrate_ackermann(np.zeros((50, 3)), controls, 1.0, 0.0, CARPARK, np.random.default_rng(1), 0.1, 0.05, 0.02)
+    np.testing.assert_array_equal(a, b)
+    assert a[:, 0].std() > 0.03
+
+
+def test_odometry_model_round_trip():
+    prev, cur = np.array([1.0, 2.0, 0.3]), np.array([2.0, 2.5, 0.9])
+    delta = odometry_delta(prev, cur)
+    out = apply_odometry(prev[None, :], delta, None, (0, 0, 0, 0))
+    np.testing.assert_allclose(out[0], cur, atol=1e-12)
+
+
+def test_measurement_model_and_inverse():
+    pose = np.array([1.0, 1.0, math.pi / 2])
+    r, b = measure(pose, np.array([0.0, 1.0]))  # a point to the robot's left
+    assert r == pytest.approx(1.0) and b == pytest.approx(math.pi / 2)
+    xy = inverse_measure(pose, np.array(3.0), np.array(-0.4))
+    r2, b2 = measure(pose, xy)
+    assert (r2, b2) == pytest.approx((3.0, -0.4))
+
+
+def test_initial_heading_recovers_rotation():
+    rng = np.random.default_rng(0)
+    t = np.arange(0, 6, 0.025)
+    controls = np.column_stack([t, np.full_like(t, 2.0), 0.05 + 0.01 * rng.standard_normal(len(t))])
+    from gslam.initialisation import dead_reckoning
+
+    true_heading = -2.2
+    gps_t = np.arange(0.0, 6.0, 0.2)
+    dr = dead_reckoning(controls, np.array([3.0, 4.0, true_heading]), 0.0, gps_t[1:], CARPARK)
+    gps = np.vstack([[0.0, 3.0, 4.0], np.column_stack([gps_t[1:], dr[:, :2]])])
+    est = fit_initial_heading(controls, gps, CARPARK, 5.0)
+    assert est[:2] == pytest.approx([3.0, 4.0])
+    assert est[2] == pytest.approx(true_heading, abs=1e-6)
+
+
+weights_strategy = st.lists(st.floats(0.0, 1.0, allow_nan=False), min_size=1, max_size=60).filter(lambda w: sum(w) > 1e-6)
+
+
+@settings(max_examples=200, deadline=None)
+@given(weights_strategy, st.integers(0, 2**32 - 1))
+def test_rsr_properties(w, seed):
+    w = np.asarray(w) / np.sum(w)
+    idx = residual_systematic_resampling(w, np.random.default_rng(seed))
+    n = len(w)
+    assert len(idx) == n
+    assert np.all(np.diff(idx) >= 0)  # replications come in order
+    counts = np.bincount(idx, minlength=n)
+    # RSR's counts stay within one of N w_i, and zero-weight particles are never picked.
+    assert np.all(np.abs(counts - n * w) < 1 + 1e-9)
+    assert np.all(counts[w == 0] == 0)
+
+
+def test_rsr_is_unbiased_on_average():
+    w = np.array([0.1, 0.2, 0.3, 0.4])
+    rng = np.random.default_rng(3)
+    mean = np.mean([np.bincount(residual_systematic_resampling(w, rng), minlength=4) for _ in range(4000)], axis=0)
+    np.testing.assert_allclose(mean, 4 * w, atol=0.03)
+
+
+def test_ess_and_log_weight_normalisation():
+    assert effective_sample_size(np.full(8, 1 / 8)) == pytest.approx(8)
+    assert effective_sample_size(np.array([1.0, 0, 0])) == pytest.approx(1)
+    w = normalise_log_weights(np.array([-1000.0, -1000.0 + math.log(3), -np.inf]))
+    np.testing.assert_allclose(w, [0.25, 0.75, 0.0])
+
+
+def test_eq7_update_on_a_tiny_map_by_hand():
+    cfg = FilterConfig(map_update="global")
+    p = np.array([0.5, 0.3, 0.2])
+    q = np.array([3.0, 1.0, 0.3])
+    owner = np.zeros(3, dtype=np.int64)
+    out = update_probabilities(p, q, owner, np.ones(3, bool), 1, cfg)
+    denom = 3 * 0.5 + 0.3 + 0.3 * 0.2
+    np.testing.assert_allclose(out, [1.5 / denom, 0.3 / denom, 0.06 / denom])
+    # "observed": the unobserved point keeps its p, the observed mass (0.8) is redistributed.
+    cfg = FilterConfig(map_update="observed")
+    out = update_probabilities(p, q, owner, np.array([True, False, True]), 1, cfg)
+    assert out[1] == 0.3
+    np.testing.assert_allclose(out[[0, 2]], np.array([1.5, 0.06]) * 0.7 / 1.56)
+    # binary: logit p += log q.
+    cfg = FilterConfig(map_update="binary")
+    out = update_probabilities(np.array([0.5]), np.array([3.0]), np.zeros(1, dtype=np.int64), np.ones(1, bool), 1, cfg)
+    assert out[0] == pytest.approx(0.75)
+
+
+def test_point_likelihood_regions():
+    cfg = FilterConfig(hit_ratio=3.0, free_ratio=0.3, hit_sigma_m=0.2)
+    r = np.array([5.0, 2.0, 9.0, 5.0])
+    z = np.array([5.0, 5.0, 5.0, 5.0])
+    observed = np.array([True, True, True, False])
+    q = point_likelihood_ratio(r, z, observed, cfg)
+    assert q[0] == pytest.approx(3.0)  # at the return
+    assert q[1] == pytest.approx(0.3)  # observed free space
+    assert q[2] == pytest.approx(1.0)  # occluded, behind the return
+    assert q[3] == 1.0  # unobserved
+
+
+def test_prune_and_thin():
+    cfg = FilterConfig(prune_relative=True, prune_threshold=0.5, max_points_per_cell=1, cell_size_m=1.0)
+    xy = np.array([[0.1, 0.1], [0.2, 0.2], [5.0, 5.0], [9.0, 9.0]])
+    p = np.array([0.4, 0.3, 0.25, 0.05])
+    out = prune_and_thin(FlatMaps(xy, p, np.zeros(4, dtype=np.int64)), 1, cfg)
+    # mean p 0.25: the 0.05 point goes; of the two in one cell the more probable stays.
+    np.testing.assert_allclose(out.xy, [[0.1, 0.1], [5.0, 5.0]])
+
+
+def test_point_maps_are_immutable_and_shared_after_resampling():
+    m = PointMap(np.zeros((2, 2)), np.ones(2))
+    with pytest.raises(ValueError):
+        m.p[0] = 3.0
+    cfg = FilterConfig(particles=4, resample_threshold=1.0)
+    flt = GSlamFilter(cfg, np.zeros(3))
+    assert all(mp is flt.maps[0] for mp in flt.maps)
+
+
+def test_ancestry_tree_shares_histories():
+    tree = AncestryTree()
+    tree.record(0.0, np.array([[0, 0, 0], [1, 0, 0]], dtype=float))
+    tree.continue_from(np.array([1, 1]))
+    tree.record(1.0, np.array([[1, 1, 0], [1, 2, 0]], dtype=float))
+    t, traj = tree.trajectory(0)
+    np.testing.assert_allclose(traj, [[1, 0, 0], [1, 1, 0]])
+    assert tree.distinct_ancestors(0) == 1
+
+
+def test_metrics_on_constructed_trajectories():
+    t = np.linspace(0, 10, 101)
+    path = np.column_stack([np.cos(t), np.sin(t), t])
+    gps = np.column_stack([t, path[:, 0], path[:, 1]])
+    assert gps_mean_error(t, path, gps) == pytest.approx(0.0)
+    shifted = path + [0.3, 0.4, 0]
+    assert gps_mean_error(t, shifted, gps) == pytest.approx(0.5)
+    c, s = math.cos(0.5), math.sin(0.5)
+    rotated = np.column_stack([c * path[:, 0] - s * path[:, 1] + 2, s * path[:, 0] + c * path[:, 1] - 1, t])
+    assert gps_rmse_aligned(t, rotated, gps) == pytest.approx(0.0, abs=1e-9)
+    ang, _ = align_se2(rotated[:, :2], path[:, :2])
+    assert ang == pytest.approx(-0.5)
+    # Relations of a perfect trajectory give zero error.
+    rel_t1, rel_t2 = t[:-5], t[5:]
+    ref = relative_pose(path[:-5], path[5:])
+    relations = np.column_stack([rel_t1, rel_t2, ref])
+    err = relations_error(t, path, relations)
+    assert err["relations_trans_m"] == pytest.approx(0.0, abs=1e-12) and err["relations_used"] == 96
+
+
+def test_filter_is_deterministic_for_a_seed():
+    geom = ScanGeometry(181, -math.pi / 2, math.pi / 180, 30.0)
+    rng = np.random.default_rng(5)
+    scans = [Scan(float(i), 5.0 + 0.05 * rng.standard_normal(181), geom) for i in range(5)]
+
+    def run(seed):
+        flt = GSlamFilter(FilterConfig(particles=5, seed=seed, proposal="motion"), np.zeros(3))
+        def predict(poses, g):
+            return poses + g.standard_normal(poses.shape) * 0.05
+        for sc in scans:
+            flt.step(sc, predict)
+        return flt.best_trajectory()[1], flt.maps[flt.best_particle()].xy
+
+    a, b, c = run(1), run(1), run(2)
+    np.testing.assert_array_equal(a[0], b[0])
+    np.testing.assert_array_equal(a[1], b[1])
+    assert not np.array_equal(a[0], c[0])
