@@ -120,10 +120,13 @@ class FilterConfig:
         if self.points_per_observation < 1:
             raise ValueError(f"points per observation must be at least 1, got {self.points_per_observation}")
         choices = {
-            "observation_unit": ("beam", "scan"), "map_update": ("global", "observed", "binary"),
+            "observation_unit": ("beam", "scan"),
+            "map_update": ("global", "observed", "binary"),
             "weighting": ("sum", "beam_sum", "likelihood_field"),
-            "prior_interpolation": ("nearest_mean", "idw", "constant"), "proposal": ("motion", "scan_match"),
-            "update_schedule": ("every_scan", "travel"), "control_noise": ("per_sample", "per_interval"),
+            "prior_interpolation": ("nearest_mean", "idw", "constant"),
+            "proposal": ("motion", "scan_match"),
+            "update_schedule": ("every_scan", "travel"),
+            "control_noise": ("per_sample", "per_interval"),
         }
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
@@ -154,9 +157,16 @@ class FilterConfig:
     def literal(cls, **overrides: Any) -> FilterConfig:
         """The paper-literal reading of every open point."""
         base = dict(
-            observation_unit="scan", map_update="global", prune_relative=False, prune_threshold=1e-6,
-            max_points_per_cell=0, weighting="sum", proposal="motion", update_schedule="every_scan",
-            prior_interpolation="idw", free_ratio=0.01,
+            observation_unit="scan",
+            map_update="global",
+            prune_relative=False,
+            prune_threshold=1e-6,
+            max_points_per_cell=0,
+            weighting="sum",
+            proposal="motion",
+            update_schedule="every_scan",
+            prior_interpolation="idw",
+            free_ratio=0.01,
         )
         base.update(overrides)
         return cls(**base)

@@ -89,9 +89,19 @@ class GSlamFilter:
             self.tree.record(scan.t_s, self.poses)
             self.steps += 1
             best = self.best_particle()
-            return StepResult(scan.t_s, self.poses.copy(), self.weights.copy(), effective_sample_size(self.weights),
-                              False, False, best, self.poses[best].copy(), len(self.maps[best]),
-                              sum(len(m) for m in self.maps), 0)
+            return StepResult(
+                scan.t_s,
+                self.poses.copy(),
+                self.weights.copy(),
+                effective_sample_size(self.weights),
+                False,
+                False,
+                best,
+                self.poses[best].copy(),
+                len(self.maps[best]),
+                sum(len(m) for m in self.maps),
+                0,
+            )
         matched = 0
         if cfg.proposal == "scan_match":
             matched = self._scan_match_proposal(scan)
@@ -129,8 +139,17 @@ class GSlamFilter:
         ess = effective_sample_size(self.weights)
         best = self.best_particle()
         result = StepResult(
-            scan.t_s, self.poses.copy(), self.weights.copy(), ess, False, True, best, self.poses[best].copy(),
-            len(self.maps[best]), len(pruned.p), matched,
+            scan.t_s,
+            self.poses.copy(),
+            self.weights.copy(),
+            ess,
+            False,
+            True,
+            best,
+            self.poses[best].copy(),
+            len(self.maps[best]),
+            len(pruned.p),
+            matched,
         )
         self.tree.record(scan.t_s, self.poses)
         if ess < cfg.resample_threshold * n:
@@ -154,8 +173,11 @@ class GSlamFilter:
             pose, ok = match_scan(m, self.poses[i], pts, cfg)
             if ok:
                 matched += 1
-                noise = self.rng.standard_normal(3) * [cfg.proposal_sigma_xy_m, cfg.proposal_sigma_xy_m,
-                                                         cfg.proposal_sigma_phi_rad]
+                noise = self.rng.standard_normal(3) * [
+                    cfg.proposal_sigma_xy_m,
+                    cfg.proposal_sigma_xy_m,
+                    cfg.proposal_sigma_phi_rad,
+                ]
                 self.poses[i] = pose + noise
                 self.poses[i, 2] = wrap_angle(self.poses[i, 2])
         return matched

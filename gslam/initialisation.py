@@ -18,7 +18,7 @@ def dead_reckoning(
     for k, t_next in enumerate(times_s):
         lo = max(int(np.searchsorted(controls[:, 0], t, side="right")) - 1, 0)
         hi = int(np.searchsorted(controls[:, 0], t_next, side="left"))
-        pose = integrate_ackermann(pose, controls[lo:max(hi, lo + 1)], t_next, t, vehicle)
+        pose = integrate_ackermann(pose, controls[lo : max(hi, lo + 1)], t_next, t, vehicle)
         out[k] = pose[0]
         t = t_next
     return out

@@ -96,12 +96,20 @@ def relations_error(
     i2, ok2 = lookup(relations[:, 1])
     ok = ok1 & ok2
     if not ok.any():
-        return {"relations_trans_m": float("nan"), "relations_trans_std_m": float("nan"),
-                "relations_rot_deg": float("nan"), "relations_used": 0}
+        return {
+            "relations_trans_m": float("nan"),
+            "relations_trans_std_m": float("nan"),
+            "relations_rot_deg": float("nan"),
+            "relations_used": 0,
+        }
     est = relative_pose(poses[i1[ok]], poses[i2[ok]])
     ref = relations[ok][:, [2, 3, 4]]
     err = relative_pose(ref, est)  # ref^-1 (+) est
     trans = np.hypot(err[:, 0], err[:, 1])
     rot = np.degrees(np.abs(err[:, 2]))
-    return {"relations_trans_m": float(trans.mean()), "relations_trans_std_m": float(trans.std()),
-            "relations_rot_deg": float(rot.mean()), "relations_used": int(ok.sum())}
+    return {
+        "relations_trans_m": float(trans.mean()),
+        "relations_trans_std_m": float(trans.std()),
+        "relations_rot_deg": float(rot.mean()),
+        "relations_used": int(ok.sum()),
+    }

@@ -12,15 +12,18 @@ def wrap_angle(a: np.ndarray | float) -> np.ndarray | float:
 
 
 def ackermann_step(
-    poses: np.ndarray, speed_mps: np.ndarray | float, steering_rad: np.ndarray | float, dt_s: float,
+    poses: np.ndarray,
+    speed_mps: np.ndarray | float,
+    steering_rad: np.ndarray | float,
+    dt_s: float,
     vehicle: AckermannVehicle,
 ) -> np.ndarray:
     """One Euler step of the paper's car model (eq. kinem) for the laser pose (x, y, phi).
 
-        vc   = ve / (1 - tan(alpha) H / L)
-        x   += dt (vc cos phi - vc/L tan(alpha) (a sin phi + b cos phi))
-        y   += dt (vc sin phi + vc/L tan(alpha) (a cos phi - b sin phi))
-        phi += dt vc/L tan(alpha)
+    vc   = ve / (1 - tan(alpha) H / L)
+    x   += dt (vc cos phi - vc/L tan(alpha) (a sin phi + b cos phi))
+    y   += dt (vc sin phi + vc/L tan(alpha) (a cos phi - b sin phi))
+    phi += dt vc/L tan(alpha)
     """
     L, H, a, b = vehicle.wheelbase_m, vehicle.encoder_offset_m, vehicle.laser_x_m, vehicle.laser_y_m
     x, y, phi = poses[..., 0], poses[..., 1], poses[..., 2]
@@ -36,9 +39,16 @@ def ackermann_step(
 
 
 def integrate_ackermann(
-    poses: np.ndarray, controls: np.ndarray, t_end_s: float, t_start_s: float, vehicle: AckermannVehicle,
-    rng: np.random.Generator | None = None, speed_sigma_mps: float = 0.0, speed_sigma_rel: float = 0.0,
-    steering_sigma_rad: float = 0.0, per_sample: bool = False,
+    poses: np.ndarray,
+    controls: np.ndarray,
+    t_end_s: float,
+    t_start_s: float,
+    vehicle: AckermannVehicle,
+    rng: np.random.Generator | None = None,
+    speed_sigma_mps: float = 0.0,
+    speed_sigma_rel: float = 0.0,
+    steering_sigma_rad: float = 0.0,
+    per_sample: bool = False,
 ) -> np.ndarray:
     """Integrate every odometry sample between t_start_s and t_end_s (zero-order hold).
 
@@ -84,7 +94,9 @@ def odometry_delta(prev: np.ndarray, cur: np.ndarray) -> tuple[float, float, flo
 
 
 def apply_odometry(
-    poses: np.ndarray, delta: tuple[float, float, float], rng: np.random.Generator | None,
+    poses: np.ndarray,
+    delta: tuple[float, float, float],
+    rng: np.random.Generator | None,
     alpha: tuple[float, float, float, float],
 ) -> np.ndarray:
     """Sample the standard odometry motion model (Thrun et al., sample_motion_model_odometry)."""

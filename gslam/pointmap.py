@@ -61,7 +61,8 @@ class FlatMaps:
         if sizes.sum() == 0:
             return cls(np.empty((0, 2)), np.empty(0), np.empty(0, dtype=np.int64))
         return cls(
-            np.concatenate([m.xy for m in maps]), np.concatenate([m.p for m in maps]),
+            np.concatenate([m.xy for m in maps]),
+            np.concatenate([m.p for m in maps]),
             np.repeat(np.arange(len(maps)), sizes),
         )
 
@@ -70,7 +71,9 @@ class FlatMaps:
         return [PointMap(self.xy[a:b].copy(), self.p[a:b].copy()) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
 
 
-def point_likelihood_ratio(range_m: np.ndarray, measured_m: np.ndarray, observed: np.ndarray, cfg: FilterConfig) -> np.ndarray:
+def point_likelihood_ratio(
+    range_m: np.ndarray, measured_m: np.ndarray, observed: np.ndarray, cfg: FilterConfig
+) -> np.ndarray:
     """q_k (eq. 6) relative to an unobserved point, for points at `range_m` on beams that measured `measured_m`.
 
     Near the return: up to hit_ratio (Gaussian in range, width hit_sigma_m). In front of it (observed free

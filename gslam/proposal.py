@@ -37,7 +37,7 @@ def match_scan(m: PointMap, pose: np.ndarray, pts_sensor: np.ndarray, cfg: Filte
     p_rel = m.p if cfg.map_update == "binary" else np.minimum(m.p / m.mean_p, 1.0)
     cur = np.array(pose, dtype=float)
     gate = cfg.match_max_distance_m
-    for it in range(cfg.match_iterations):
+    for _ in range(cfg.match_iterations):
         world = transform_points(cur, pts_sensor)
         dist, idx = m.tree.query(world, k=1, distance_upper_bound=gate)
         found = np.isfinite(dist)

@@ -22,6 +22,19 @@ class ScanGeometry:
     def bearings_rad(self) -> np.ndarray:
         return self.start_angle_rad + self.angle_increment_rad * np.arange(self.beam_count)
 
+    @property
+    def end_angle_rad(self) -> float:
+        return self.start_angle_rad + (self.beam_count - 1) * self.angle_increment_rad
+
+    def as_dict(self) -> dict[str, float]:
+        return {
+            "beam_count": self.beam_count,
+            "start_angle_rad": self.start_angle_rad,
+            "end_angle_rad": self.end_angle_rad,
+            "angle_increment_rad": self.angle_increment_rad,
+            "max_range_m": self.max_range_m,
+        }
+
 
 @dataclass(frozen=True)
 class Scan:

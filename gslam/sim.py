@@ -48,8 +48,16 @@ def ray_cast(world: World, origin: np.ndarray, angles_rad: np.ndarray, max_range
 def carpark_world(rng: np.random.Generator, size_m: float = 40.0, poles: int = 15) -> World:
     """A rectangular yard bounded by walls, with poles scattered in it (away from a central loop)."""
     h = size_m / 2
-    walls = np.array([[-h, -h, h, -h], [h, -h, h, h], [h, h, -h, h], [-h, h, -h, -h],
-                      [-h * 0.5, -h * 0.1, -h * 0.5 + 3, -h * 0.1], [h * 0.4, h * 0.2, h * 0.4, h * 0.2 + 4]])
+    walls = np.array(
+        [
+            [-h, -h, h, -h],
+            [h, -h, h, h],
+            [h, h, -h, h],
+            [-h, h, -h, -h],
+            [-h * 0.5, -h * 0.1, -h * 0.5 + 3, -h * 0.1],
+            [h * 0.4, h * 0.2, h * 0.4, h * 0.2 + 4],
+        ]
+    )
     ang = rng.uniform(0, 2 * np.pi, poles)
     rad = rng.uniform(0.45 * h, 0.85 * h, poles)
     pts = np.column_stack([rad * np.cos(ang), rad * np.sin(ang), np.full(poles, 0.15)])
@@ -65,10 +73,20 @@ class SimLog:
 
 
 def simulate_loop(
-    world: World, vehicle: AckermannVehicle, rng: np.random.Generator, duration_s: float = 40.0,
-    radius_m: float = 8.0, speed_mps: float = 2.0, odom_hz: float = 40.0, scan_hz: float = 4.7,
-    beam_count: int = 361, max_range_m: float = 80.0, range_sigma_m: float = 0.02,
-    speed_scale_error: float = 0.03, speed_sigma_mps: float = 0.05, steering_sigma_rad: float = 0.01,
+    world: World,
+    vehicle: AckermannVehicle,
+    rng: np.random.Generator,
+    duration_s: float = 40.0,
+    radius_m: float = 8.0,
+    speed_mps: float = 2.0,
+    odom_hz: float = 40.0,
+    scan_hz: float = 4.7,
+    beam_count: int = 361,
+    max_range_m: float = 80.0,
+    range_sigma_m: float = 0.02,
+    speed_scale_error: float = 0.03,
+    speed_sigma_mps: float = 0.05,
+    steering_sigma_rad: float = 0.01,
 ) -> SimLog:
     """Drive a circle of `radius_m` at constant speed; record noisy odometry and laser scans."""
     steering = np.arctan(vehicle.wheelbase_m / radius_m)
@@ -81,8 +99,13 @@ def simulate_loop(
     next_scan = 0.0
     for k in range(n):
         t = k * dt
-        controls.append([t, speed_mps * (1 + speed_scale_error) + rng.normal(0, speed_sigma_mps),
-                         steering + rng.normal(0, steering_sigma_rad)])
+        controls.append(
+            [
+                t,
+                speed_mps * (1 + speed_scale_error) + rng.normal(0, speed_sigma_mps),
+                steering + rng.normal(0, steering_sigma_rad),
+            ]
+        )
         if k >= next_scan:
             r = ray_cast(world, pose[0, :2], pose[0, 2] + bearings, max_range_m)
             r = np.where(np.isfinite(r), r + rng.normal(0, range_sigma_m, len(r)), np.inf)

@@ -25,7 +25,13 @@ def relative_probability(flat: FlatMaps, n: int, cfg: FilterConfig) -> np.ndarra
 
 
 def log_weight_beam_sum(
-    flat: FlatMaps, r: np.ndarray, j: np.ndarray, z: np.ndarray, observed: np.ndarray, scan: Scan, n: int,
+    flat: FlatMaps,
+    r: np.ndarray,
+    j: np.ndarray,
+    z: np.ndarray,
+    observed: np.ndarray,
+    scan: Scan,
+    n: int,
     cfg: FilterConfig,
 ) -> np.ndarray:
     """Each return is one observation: log w_i = tempering * sum over returns of
@@ -33,7 +39,9 @@ def log_weight_beam_sum(
     p_k exp(-(r_k - z_j)^2 / 2 sigma^2)."""
     returns = scan.returns
     on_return = observed & returns[j]
-    contrib = np.where(on_return, relative_probability(flat, n, cfg) * np.exp(-0.5 * ((r - z) / cfg.weight_sigma_m) ** 2), 0.0)
+    contrib = np.where(
+        on_return, relative_probability(flat, n, cfg) * np.exp(-0.5 * ((r - z) / cfg.weight_sigma_m) ** 2), 0.0
+    )
     b = scan.geometry.beam_count
     s = np.bincount(flat.owner * b + j, weights=contrib, minlength=n * b).reshape(n, b)
     idx = np.flatnonzero(returns)[:: cfg.weight_beam_stride]

@@ -78,7 +78,11 @@ class IngestReport:
 
 
 def ingest(
-    source: Path, output: Path, fmt: str = "auto", dataset: str | None = None, skip_bad_lines: bool = False,
+    source: Path,
+    output: Path,
+    fmt: str = "auto",
+    dataset: str | None = None,
+    skip_bad_lines: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> IngestReport:
     """Read `source` and write it as an MCAP at `output` (atomically)."""

@@ -64,8 +64,9 @@ def read_relations(path: Path) -> np.ndarray:
         if not parts or parts[0].startswith("#"):
             continue
         if len(parts) != 8:
-            raise IngestError(f"{path}:{lineno}: expected 8 columns (t1 t2 dx dy dz droll dpitch dyaw), "
-                              f"found {len(parts)}")
+            raise IngestError(
+                f"{path}:{lineno}: expected 8 columns (t1 t2 dx dy dz droll dpitch dyaw), found {len(parts)}"
+            )
         try:
             v = [float(p) for p in parts]
         except ValueError:
@@ -108,8 +109,11 @@ def read_carmen(path: Path, skip_bad_lines: bool = False) -> LogData:
                 bad(lineno, "FLASER without a beam count")
                 continue
             if len(parts) < n + 9:
-                bad(lineno, f"FLASER with {n} beams needs {n + 9} fields (up to ipc_timestamp and "
-                            f"hostname), found {len(parts)}")
+                bad(
+                    lineno,
+                    f"FLASER with {n} beams needs {n + 9} fields (up to ipc_timestamp and "
+                    f"hostname), found {len(parts)}",
+                )
                 continue
             if beam_count is not None and n != beam_count:
                 bad(lineno, f"FLASER with {n} beams after scans with {beam_count}")
@@ -134,8 +138,10 @@ def read_carmen(path: Path, skip_bad_lines: bool = False) -> LogData:
             odom_source.append("FLASER")
         elif kind == "ODOM":
             if len(parts) < 8:
-                bad(lineno, f"ODOM needs at least 8 fields (ODOM x y theta tv rv accel ipc_timestamp), "
-                            f"found {len(parts)}")
+                bad(
+                    lineno,
+                    f"ODOM needs at least 8 fields (ODOM x y theta tv rv accel ipc_timestamp), found {len(parts)}",
+                )
                 continue
             try:
                 x, y, th, tv, rv = (float(p) for p in parts[1:6])
@@ -162,9 +168,16 @@ def read_carmen(path: Path, skip_bad_lines: bool = False) -> LogData:
     ranges_m[ranges_m >= CARMEN_NO_RETURN_M] = np.inf
     name = path.name.split(".")[0]
     log = LogData(
-        dataset=name, source_format="carmen", source=str(path), motion_model="odometry",
-        geometry=carmen_geometry(int(beam_count)), scan_t_s=scan_t_s, scan_ranges_m=ranges_m,
-        odom_pose=np.asarray(odom), odom_source=odom_source, warnings=warnings,
+        dataset=name,
+        source_format="carmen",
+        source=str(path),
+        motion_model="odometry",
+        geometry=carmen_geometry(int(beam_count)),
+        scan_t_s=scan_t_s,
+        scan_ranges_m=ranges_m,
+        odom_pose=np.asarray(odom),
+        odom_source=odom_source,
+        warnings=warnings,
     )
     rel = relations_path_for(path)
     if rel.exists():

@@ -6,28 +6,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from gslam.scan import ScanGeometry
 
-@dataclass
-class ScanGeometry:
-    """Laser geometry: beam k is at bearing start_angle_rad + k * angle_increment_rad (x ahead)."""
-
-    beam_count: int
-    start_angle_rad: float
-    angle_increment_rad: float
-    max_range_m: float
-
-    @property
-    def end_angle_rad(self) -> float:
-        return self.start_angle_rad + (self.beam_count - 1) * self.angle_increment_rad
-
-    def as_dict(self) -> dict[str, float]:
-        return {
-            "beam_count": self.beam_count,
-            "start_angle_rad": self.start_angle_rad,
-            "end_angle_rad": self.end_angle_rad,
-            "angle_increment_rad": self.angle_increment_rad,
-            "max_range_m": self.max_range_m,
-        }
+__all__ = ["LogData", "ScanGeometry"]
 
 
 @dataclass

@@ -74,8 +74,12 @@ def read_sydney_text(directory: Path, skip_bad_lines: bool = False) -> LogData:
     _report_dropped(drs, drs_path, warnings)
     _check_times(str(drs_path), drs.rows[:, 0], warnings)
     log = LogData(
-        dataset=_dataset_name(directory), source_format="sydney-text", source=str(directory),
-        motion_model="ackermann", vehicle_preset="carpark", ackermann=drs.rows,
+        dataset=_dataset_name(directory),
+        source_format="sydney-text",
+        source=str(directory),
+        motion_model="ackermann",
+        vehicle_preset="carpark",
+        ackermann=drs.rows,
     )
     gps_path = directory / "GPS.txt"
     if gps_path.exists():
@@ -134,8 +138,10 @@ def _var(mat: dict, path: Path, name: str) -> np.ndarray:
 def _finite(path: Path, name: str, a: np.ndarray) -> np.ndarray:
     bad = ~np.isfinite(a)
     if bad.any():
-        raise IngestError(f"{path}: variable {name!r} has {int(bad.sum())} non-finite values "
-                          f"(first at index {int(np.argmax(bad.ravel()))})")
+        raise IngestError(
+            f"{path}: variable {name!r} has {int(bad.sum())} non-finite values "
+            f"(first at index {int(np.argmax(bad.ravel()))})"
+        )
     return a
 
 
@@ -155,14 +161,16 @@ def _read_carpark_mat(directory: Path) -> LogData:
     m = _loadmat(path)
     warnings: list[str] = []
     t_vs = _finite(path, "Time_VS", _var(m, path, "Time_VS").ravel().astype(float))
-    ack = np.column_stack([
-        t_vs,
-        _finite(path, "Velocity", _var(m, path, "Velocity").ravel().astype(float)),
-        _finite(path, "Steering", _var(m, path, "Steering").ravel().astype(float)),
-    ])
-    gps = np.column_stack([
-        _var(m, path, "TimeGPS").ravel(), _var(m, path, "GPSLon").ravel(), _var(m, path, "GPSLat").ravel()
-    ]).astype(float)
+    ack = np.column_stack(
+        [
+            t_vs,
+            _finite(path, "Velocity", _var(m, path, "Velocity").ravel().astype(float)),
+            _finite(path, "Steering", _var(m, path, "Steering").ravel().astype(float)),
+        ]
+    )
+    gps = np.column_stack(
+        [_var(m, path, "TimeGPS").ravel(), _var(m, path, "GPSLon").ravel(), _var(m, path, "GPSLat").ravel()]
+    ).astype(float)
     laser = _finite(path, "Laser", _var(m, path, "Laser").astype(float))
     if laser.ndim != 2 or laser.shape[1] != SYDNEY_BEAMS:
         raise IngestError(f"{path}: 'Laser' has shape {laser.shape}, expected (K, {SYDNEY_BEAMS})")
@@ -177,9 +185,17 @@ def _read_carpark_mat(directory: Path) -> LogData:
     for name, t in (("Time_VS", t_vs), ("TimeGPS", gps[:, 0]), ("TimeLaser", t_laser)):
         _check_times(f"{path}:{name}", t, warnings)
     log = LogData(
-        dataset=_dataset_name(directory), source_format="sydney-mat", source=str(directory),
-        motion_model="ackermann", vehicle_preset="carpark", geometry=SYDNEY_GEOMETRY,
-        scan_t_s=t_laser, scan_ranges_m=ranges, ackermann=ack, gps=gps, warnings=warnings,
+        dataset=_dataset_name(directory),
+        source_format="sydney-mat",
+        source=str(directory),
+        motion_model="ackermann",
+        vehicle_preset="carpark",
+        geometry=SYDNEY_GEOMETRY,
+        scan_t_s=t_laser,
+        scan_ranges_m=ranges,
+        ackermann=ack,
+        gps=gps,
+        warnings=warnings,
     )
     if "Intensity" in m:
         log.scan_intensities = np.asarray(m["Intensity"], dtype=float)
@@ -193,23 +209,34 @@ def _read_victoria_mat(directory: Path, skip_bad_lines: bool) -> LogData:
     warnings: list[str] = []
     dr_path = directory / VICTORIA_DR_MAT
     dr = _loadmat(dr_path)
-    ack = np.column_stack([
-        _var(dr, dr_path, "time").ravel() / 1000.0, _var(dr, dr_path, "speed").ravel(),
-        _var(dr, dr_path, "steering").ravel(),
-    ]).astype(float)
+    ack = np.column_stack(
+        [
+            _var(dr, dr_path, "time").ravel() / 1000.0,
+            _var(dr, dr_path, "speed").ravel(),
+            _var(dr, dr_path, "steering").ravel(),
+        ]
+    ).astype(float)
     _finite(dr_path, "speed/steering", ack)
     _check_times(str(dr_path), ack[:, 0], warnings)
     log = LogData(
-        dataset=_dataset_name(directory), source_format="sydney-mat", source=str(directory),
-        motion_model="ackermann", vehicle_preset="carpark", ackermann=ack, warnings=warnings,
+        dataset=_dataset_name(directory),
+        source_format="sydney-mat",
+        source=str(directory),
+        motion_model="ackermann",
+        vehicle_preset="carpark",
+        ackermann=ack,
+        warnings=warnings,
     )
     gps_path = directory / VICTORIA_GPS_MAT
     if gps_path.exists():
         g = _loadmat(gps_path)
-        log.gps = np.column_stack([
-            _var(g, gps_path, "timeGps").ravel() / 1000.0, _var(g, gps_path, "Lo_m").ravel(),
-            _var(g, gps_path, "La_m").ravel(),
-        ]).astype(float)
+        log.gps = np.column_stack(
+            [
+                _var(g, gps_path, "timeGps").ravel() / 1000.0,
+                _var(g, gps_path, "Lo_m").ravel(),
+                _var(g, gps_path, "La_m").ravel(),
+            ]
+        ).astype(float)
     laser_path = directory / VICTORIA_LASER_MAT
     if laser_path.exists():
         lm = _loadmat(laser_path)

@@ -23,9 +23,7 @@ class Table:
     drop_reasons: list[str] = field(default_factory=list)
 
 
-def parse_numeric_csv(
-    path: Path, columns: int | None, skip_bad_lines: bool = False, text: str | None = None
-) -> Table:
+def parse_numeric_csv(path: Path, columns: int | None, skip_bad_lines: bool = False, text: str | None = None) -> Table:
     """Parse a comma-separated numeric log.
 
     Every non-empty line must have `columns` finite numbers (when `columns` is None, the first data

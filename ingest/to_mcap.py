@@ -67,11 +67,15 @@ def _event_order(log: LogData) -> tuple[np.ndarray, list[str], np.ndarray]:
 def metadata_for(log: LogData) -> dict[str, dict]:
     meta: dict[str, dict] = {
         "dataset": {
-            "name": log.dataset, "source_format": log.source_format, "source": log.source,
+            "name": log.dataset,
+            "source_format": log.source_format,
+            "source": log.source,
             "counts": log.counts(),
         },
         "ingest": {
-            "gslam_version": __version__, "created_unix_s": round(time.time(), 3), "warnings": log.warnings,
+            "gslam_version": __version__,
+            "created_unix_s": round(time.time(), 3),
+            "warnings": log.warnings,
         },
     }
     if log.motion_model == "ackermann":
@@ -85,9 +89,7 @@ def metadata_for(log: LogData) -> dict[str, dict]:
     return meta
 
 
-def write_log_mcap(
-    log: LogData, out: Path, progress: Callable[[int, int], None] | None = None
-) -> dict[str, int]:
+def write_log_mcap(log: LogData, out: Path, progress: Callable[[int, int], None] | None = None) -> dict[str, int]:
     """Write `log` to `out` atomically; returns the message count per topic."""
     t_ns, kinds, idx = _event_order(log)
     counts: dict[str, int] = {}
@@ -98,35 +100,64 @@ def write_log_mcap(
             writer.add_metadata(name, data)
         first_ns = int(t_ns[0]) if len(t_ns) else 0
         if log.landmarks is not None:
-            writer.write_json(ch.LANDMARKS_TRUTH, "gslam.Landmarks", ch.LANDMARKS_SCHEMA, {
-                "x_m": log.landmarks[:, 0].tolist(), "y_m": log.landmarks[:, 1].tolist(), "kind": "pole",
-            }, first_ns)
+            writer.write_json(
+                ch.LANDMARKS_TRUTH,
+                "gslam.Landmarks",
+                ch.LANDMARKS_SCHEMA,
+                {
+                    "x_m": log.landmarks[:, 0].tolist(),
+                    "y_m": log.landmarks[:, 1].tolist(),
+                    "kind": "pole",
+                },
+                first_ns,
+            )
             counts[ch.LANDMARKS_TRUTH] = 1
         if log.relations is not None:
             r = log.relations
-            writer.write_json(ch.RELATIONS_TRUTH, "gslam.Relations", ch.RELATIONS_SCHEMA, {
-                "t1_s": r[:, 0].tolist(), "t2_s": r[:, 1].tolist(), "dx_m": r[:, 2].tolist(),
-                "dy_m": r[:, 3].tolist(), "dyaw_rad": r[:, 4].tolist(),
-            }, first_ns)
+            writer.write_json(
+                ch.RELATIONS_TRUTH,
+                "gslam.Relations",
+                ch.RELATIONS_SCHEMA,
+                {
+                    "t1_s": r[:, 0].tolist(),
+                    "t2_s": r[:, 1].tolist(),
+                    "dx_m": r[:, 2].tolist(),
+                    "dy_m": r[:, 3].tolist(),
+                    "dyaw_rad": r[:, 4].tolist(),
+                },
+                first_ns,
+            )
             counts[ch.RELATIONS_TRUTH] = 1
         total = len(kinds)
         for n, (ns, kind, i) in enumerate(zip(t_ns.tolist(), kinds, idx.tolist(), strict=True)):
             if kind == "scan":
                 inten = None if log.scan_intensities is None else log.scan_intensities[i]
-                msg = ch.laser_scan(float(log.scan_t_s[i]), log.scan_ranges_m[i], geom.start_angle_rad,
-                                    geom.end_angle_rad, inten)
+                msg = ch.laser_scan(
+                    float(log.scan_t_s[i]), log.scan_ranges_m[i], geom.start_angle_rad, geom.end_angle_rad, inten
+                )
                 writer.write_proto(ch.LASER, msg, ns)
                 topic = ch.LASER
             elif kind == "ackermann":
                 t, v, s = log.ackermann[i].tolist()
-                writer.write_json(ch.ODOM_ACKERMANN, "gslam.AckermannOdometry", ch.ACKERMANN_SCHEMA,
-                                  {"t_s": t, "speed_mps": v, "steering_rad": s}, ns)
+                writer.write_json(
+                    ch.ODOM_ACKERMANN,
+                    "gslam.AckermannOdometry",
+                    ch.ACKERMANN_SCHEMA,
+                    {"t_s": t, "speed_mps": v, "steering_rad": s},
+                    ns,
+                )
                 topic = ch.ODOM_ACKERMANN
             elif kind == "odom":
                 t, x, y, th, tv, rv = log.odom_pose[i].tolist()
-                obj = {"t_s": t, "x_m": x, "y_m": y, "theta_rad": th,
-                       "tv_mps": None if np.isnan(tv) else tv, "rv_radps": None if np.isnan(rv) else rv,
-                       "source": log.odom_source[i] if log.odom_source else "ODOM"}
+                obj = {
+                    "t_s": t,
+                    "x_m": x,
+                    "y_m": y,
+                    "theta_rad": th,
+                    "tv_mps": None if np.isnan(tv) else tv,
+                    "rv_radps": None if np.isnan(rv) else rv,
+                    "source": log.odom_source[i] if log.odom_source else "ODOM",
+                }
                 writer.write_json(ch.ODOM_POSE, "gslam.OdometryPose", ch.ODOM_POSE_SCHEMA, obj, ns)
                 topic = ch.ODOM_POSE
             else:  # gps

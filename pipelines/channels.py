@@ -134,8 +134,12 @@ def yaw_of(pose: Pose) -> float:
 
 
 def laser_scan(
-    t_s: float, ranges_m: np.ndarray, start_angle_rad: float, end_angle_rad: float,
-    intensities: np.ndarray | None = None, frame_id: str = "laser",
+    t_s: float,
+    ranges_m: np.ndarray,
+    start_angle_rad: float,
+    end_angle_rad: float,
+    intensities: np.ndarray | None = None,
+    frame_id: str = "laser",
 ) -> LaserScan:
     """A foxglove.LaserScan; ranges with no return are +inf."""
     msg = LaserScan(frame_id=frame_id, start_angle=start_angle_rad, end_angle=end_angle_rad)

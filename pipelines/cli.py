@@ -6,7 +6,7 @@ import functools
 import json
 import os
 import sys
-from enum import Enum
+from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
 
@@ -84,14 +84,20 @@ def progress_bar(description: str, unit: str = "msgs"):
     )
 
     return Progress(
-        TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-        TextColumn("{task.fields[rate]}"), TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(),
-        transient=False, disable=not sys.stderr.isatty() and not os.environ.get("GSLAM_PROGRESS"),
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.fields[rate]}"),
+        TimeElapsedColumn(),
+        TextColumn("eta"),
+        TimeRemainingColumn(),
+        transient=False,
+        disable=not sys.stderr.isatty() and not os.environ.get("GSLAM_PROGRESS"),
         console=None,
     )
 
 
-class Format(str, Enum):
+class Format(StrEnum):
     auto = "auto"
     sydney_text = "sydney-text"
     sydney_mat = "sydney-mat"
@@ -103,9 +109,15 @@ class Format(str, Enum):
 def ingest(
     source: Annotated[Path, typer.Argument(help="A log directory or file (Sydney text/.mat, CARMEN .clf/.log[.gz]).")],
     output: Annotated[Path, typer.Option("-o", "--output", help="The MCAP file to write.")],
-    format: Annotated[Format, typer.Option("--format", help="Input format; auto detects it from the names.")] = Format.auto,
-    dataset: Annotated[str | None, typer.Option(help="Dataset name stored in the metadata (default: from the path).")] = None,
-    skip_bad_lines: Annotated[bool, typer.Option("--skip-bad-lines", help="Drop malformed lines and report how many.")] = False,
+    format: Annotated[
+        Format, typer.Option("--format", help="Input format; auto detects it from the names.")
+    ] = Format.auto,
+    dataset: Annotated[
+        str | None, typer.Option(help="Dataset name stored in the metadata (default: from the path).")
+    ] = None,
+    skip_bad_lines: Annotated[
+        bool, typer.Option("--skip-bad-lines", help="Drop malformed lines and report how many.")
+    ] = False,
 ) -> None:
     """Convert a Sydney (text or .mat) or CARMEN log to an MCAP with the gslam input channels."""
     import time
@@ -123,8 +135,10 @@ def ingest(
     for w in report.log.warnings:
         typer.secho(f"warning: {w}", fg=typer.colors.YELLOW, err=True)
     counts = ", ".join(f"{k} {v}" for k, v in report.counts.items())
-    typer.echo(f"wrote {report.output} ({report.log.dataset}, {report.log.source_format}) in "
-               f"{time.perf_counter() - t0:.2f} s: {counts}")
+    typer.echo(
+        f"wrote {report.output} ({report.log.dataset}, {report.log.source_format}) in "
+        f"{time.perf_counter() - t0:.2f} s: {counts}"
+    )
 
 
 @app.command()
@@ -172,14 +186,20 @@ def _load_config_file(path: Path | None) -> dict:
 def process(
     input: Annotated[Path, typer.Argument(help="Input MCAP from `gslam ingest`.")],
     output: Annotated[Path, typer.Argument(help="Result MCAP to write.")],
-    rrd: Annotated[Path | None, typer.Option("--rrd", help="Rerun recording to write (default: OUTPUT with .rrd).")] = None,
+    rrd: Annotated[
+        Path | None, typer.Option("--rrd", help="Rerun recording to write (default: OUTPUT with .rrd).")
+    ] = None,
     no_rrd: Annotated[bool, typer.Option("--no-rrd", help="Do not write a Rerun recording.")] = False,
     particles: Annotated[int | None, typer.Option("--particles", "-N", help="Number of particles N.")] = None,
     points: Annotated[int | None, typer.Option("--points", "-M", help="New points per observation M.")] = None,
     seed: Annotated[int | None, typer.Option("--seed", help="Random seed.")] = None,
     vehicle: Annotated[str | None, typer.Option("--vehicle", help="Vehicle preset: carpark or paper.")] = None,
-    config: Annotated[Path | None, typer.Option("--config", help="TOML file: [filter] options and run options.")] = None,
-    set_: Annotated[list[str] | None, typer.Option("--set", help="Filter option override, NAME=VALUE (repeatable).")] = None,
+    config: Annotated[
+        Path | None, typer.Option("--config", help="TOML file: [filter] options and run options.")
+    ] = None,
+    set_: Annotated[
+        list[str] | None, typer.Option("--set", help="Filter option override, NAME=VALUE (repeatable).")
+    ] = None,
     max_scans: Annotated[int | None, typer.Option("--max-scans", help="Stop after this many scans.")] = None,
 ) -> None:
     """Run G-SLAM over an input MCAP; write the result MCAP and a Rerun recording."""
@@ -200,7 +220,9 @@ def process(
     for k, v in (("particles", particles), ("points_per_observation", points), ("seed", seed)):
         if v is not None:
             filter_opts[k] = v
-    run_opts = {k: v for k, v in data.items() if k in ("vehicle", "init_heading_window_s", "map_snapshot_every", "max_scans")}
+    run_opts = {
+        k: v for k, v in data.items() if k in ("vehicle", "init_heading_window_s", "map_snapshot_every", "max_scans")
+    }
     unknown = sorted(set(data) - set(run_opts))
     if unknown:
         raise ValueError(f"{config}: unknown option(s) {', '.join(unknown)}")
@@ -225,7 +247,8 @@ def process(
         summary = run_process(input, output, rrd_path, cfg, progress, command=" ".join(["gslam", *sys.argv[1:]]))
     typer.echo(
         f"{summary.steps} steps of {summary.scans_in_log} scans; final map {summary.final_map_points} points; "
-        f"{summary.ms_per_step_filter_median:.1f} ms per step (filter), {summary.ms_per_step_median:.1f} ms end to end; "
+        f"{summary.ms_per_step_filter_median:.1f} ms per step (filter), "
+        f"{summary.ms_per_step_median:.1f} ms end to end; "
         f"real-time factor {summary.real_time_factor:.1f}"
     )
     typer.echo(f"wrote {summary.output}")
@@ -237,7 +260,9 @@ def process(
 @guarded
 def evaluate(
     result: Annotated[Path, typer.Argument(help="Result MCAP from `gslam process`.")],
-    reference: Annotated[Path | None, typer.Option("--reference", help="Input MCAP (default: from the result's metadata).")] = None,
+    reference: Annotated[
+        Path | None, typer.Option("--reference", help="Input MCAP (default: from the result's metadata).")
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Accuracy and speed metrics of a result (GPS error, pole map error, relations, time per step)."""

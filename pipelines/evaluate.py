@@ -16,9 +16,19 @@ from .errors import InputError
 from .mcapio import McapInput
 
 METRIC_KEYS = (
-    "gps_mean_error_m", "gps_mean_error_online_m", "gps_rmse_aligned_m", "pole_map_error_m", "poles_within_1m",
-    "relations_trans_m", "relations_trans_std_m", "relations_rot_deg", "ms_per_step_median", "real_time_factor",
-    "final_map_points", "particles", "points_per_observation",
+    "gps_mean_error_m",
+    "gps_mean_error_online_m",
+    "gps_rmse_aligned_m",
+    "pole_map_error_m",
+    "poles_within_1m",
+    "relations_trans_m",
+    "relations_trans_std_m",
+    "relations_rot_deg",
+    "ms_per_step_median",
+    "real_time_factor",
+    "final_map_points",
+    "particles",
+    "points_per_observation",
 )
 
 
@@ -60,8 +70,16 @@ def read_result(path: Path) -> ResultData:
             map_xy, map_p = ch.cloud_arrays(msg.value)
     if trajectory is None or len(trajectory) != len(t):
         raise InputError(f"{path}: no final trajectory matching the {len(t)} steps")
-    return ResultData(meta, np.asarray(t), np.asarray(stamp), np.asarray(online).reshape(-1, 3), trajectory,
-                      map_xy, map_p, np.asarray(step_ms))
+    return ResultData(
+        meta,
+        np.asarray(t),
+        np.asarray(stamp),
+        np.asarray(online).reshape(-1, 3),
+        trajectory,
+        map_xy,
+        map_p,
+        np.asarray(step_ms),
+    )
 
 
 def _clean(v: Any) -> Any:

@@ -45,12 +45,24 @@ class McapResultWriter:
         w = self.writer
         w.write_proto(ch.SLAM_POSE, ch.pose_in_frame(st.event.stamp_s, *r.best_pose, ch.MAP_FRAME), ns)
         w.write_proto(ch.SLAM_PARTICLES, ch.poses_in_frame(st.event.stamp_s, r.poses, ch.MAP_FRAME), ns)
-        w.write_json(ch.SLAM_STATS, "gslam.StepStats", ch.STATS_SCHEMA, {
-            "scan_index": st.event.index, "t_s": st.event.t_s, "effective_sample_size": r.effective_sample_size,
-            "resampled": r.resampled, "updated": r.updated, "map_points": r.map_points,
-            "map_points_total": r.map_points_total, "step_ms": st.step_ms, "best_particle": r.best,
-            "matched": r.matched,
-        }, ns)
+        w.write_json(
+            ch.SLAM_STATS,
+            "gslam.StepStats",
+            ch.STATS_SCHEMA,
+            {
+                "scan_index": st.event.index,
+                "t_s": st.event.t_s,
+                "effective_sample_size": r.effective_sample_size,
+                "resampled": r.resampled,
+                "updated": r.updated,
+                "map_points": r.map_points,
+                "map_points_total": r.map_points_total,
+                "step_ms": st.step_ms,
+                "best_particle": r.best,
+                "matched": r.matched,
+            },
+            ns,
+        )
         if self.snapshot_every and st.event.index % self.snapshot_every == 0:
             m = flt.maps[r.best]
             w.write_proto(ch.SLAM_MAP, ch.point_cloud(st.event.stamp_s, m.xy, m.p), ns)
@@ -73,8 +85,16 @@ class McapResultWriter:
 class RerunResultWriter:
     """Writes a Rerun recording (.rrd) with a default blueprint, on the `scan` and `time` timelines."""
 
-    def __init__(self, path: Path, geometry: ScanGeometry, snapshot_every: int, t0_s: float,
-                 gps: np.ndarray | None, landmarks: np.ndarray | None, app_id: str = "gslam") -> None:
+    def __init__(
+        self,
+        path: Path,
+        geometry: ScanGeometry,
+        snapshot_every: int,
+        t0_s: float,
+        gps: np.ndarray | None,
+        landmarks: np.ndarray | None,
+        app_id: str = "gslam",
+    ) -> None:
         import rerun as rr
 
         self.rr = rr
@@ -93,9 +113,16 @@ class RerunResultWriter:
         if gps is not None and len(gps):
             self.rec.log("world/gps", rr.LineStrips2D([gps[:, 1:3]], colors=[[40, 200, 40]], radii=0.08), static=True)
         if landmarks is not None and len(landmarks):
-            self.rec.log("world/landmarks", rr.Points2D(landmarks, colors=[[255, 200, 0]], radii=0.4,
-                                                        labels=[f"pole {i + 1}" for i in range(len(landmarks))]),
-                         static=True)
+            self.rec.log(
+                "world/landmarks",
+                rr.Points2D(
+                    landmarks,
+                    colors=[[255, 200, 0]],
+                    radii=0.4,
+                    labels=[f"pole {i + 1}" for i in range(len(landmarks))],
+                ),
+                static=True,
+            )
 
     def blueprint(self):
         import rerun.blueprint as rrb
@@ -125,8 +152,13 @@ class RerunResultWriter:
         self.online.append(r.best_pose[:2].copy())
         if self.snapshot_every and st.event.index % self.snapshot_every == 0:
             self._log_map(flt.maps[r.best])
-        for key, value in (("scan", st.event.index), ("time", st.event.t_s - self.t0_s),
-                           ("ess", r.effective_sample_size), ("map", r.map_points), ("ms", st.step_ms)):
+        for key, value in (
+            ("scan", st.event.index),
+            ("time", st.event.t_s - self.t0_s),
+            ("ess", r.effective_sample_size),
+            ("map", r.map_points),
+            ("ms", st.step_ms),
+        ):
             self.stats[key].append(value)
 
     def _log_map(self, m) -> None:
@@ -137,8 +169,10 @@ class RerunResultWriter:
             return self.path
         rr, rec = self.rr, self.rec
         if self.stats["scan"]:
-            idx = [rr.TimeColumn("scan", sequence=self.stats["scan"]),
-                   rr.TimeColumn("time", duration=self.stats["time"])]
+            idx = [
+                rr.TimeColumn("scan", sequence=self.stats["scan"]),
+                rr.TimeColumn("time", duration=self.stats["time"]),
+            ]
             for name, key in (("effective_sample_size", "ess"), ("map_points", "map"), ("step_ms", "ms")):
                 rec.send_columns(f"stats/{name}", indexes=idx, columns=rr.Scalars.columns(scalars=self.stats[key]))
             rec.set_time("scan", sequence=self.stats["scan"][-1])

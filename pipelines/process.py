@@ -45,8 +45,12 @@ def _landmarks(log: InputLog) -> np.ndarray | None:
 
 
 def process(
-    input_path: Path, output_path: Path, rrd_path: Path | None, cfg: RunConfig,
-    progress: Callable[[int, int, float], None] | None = None, command: str | None = None,
+    input_path: Path,
+    output_path: Path,
+    rrd_path: Path | None,
+    cfg: RunConfig,
+    progress: Callable[[int, int, float], None] | None = None,
+    command: str | None = None,
 ) -> ProcessSummary:
     """Run the filter over `input_path`. Ctrl-C or an error mid-run still finishes both outputs with the
     steps done so far (the error is re-raised after)."""
@@ -55,17 +59,25 @@ def process(
     metadata = {
         "gslam": {"version": __version__, "command": command or " ".join(sys.argv), "method": "gslam"},
         "config": cfg.as_dict(),
-        "input": {"path": str(Path(input_path).resolve()), "dataset": log.meta.get("dataset", {}).get("name", ""),
-                  "sensor": log.meta.get("sensor", {}), "vehicle": log.meta.get("vehicle", {})},
-        "initialisation": {"pose": None if runner.initial_pose is None else runner.initial_pose.tolist(),
-                           "t_s": runner.t_init_s, "heading_window_s": cfg.init_heading_window_s},
+        "input": {
+            "path": str(Path(input_path).resolve()),
+            "dataset": log.meta.get("dataset", {}).get("name", ""),
+            "sensor": log.meta.get("sensor", {}),
+            "vehicle": log.meta.get("vehicle", {}),
+        },
+        "initialisation": {
+            "pose": None if runner.initial_pose is None else runner.initial_pose.tolist(),
+            "t_s": runner.t_init_s,
+            "heading_window_s": cfg.init_heading_window_s,
+        },
     }
     mcap_out = McapResultWriter(output_path, metadata, cfg.map_snapshot_every)
     rrd_out = None
     try:
         if rrd_path is not None:
-            rrd_out = RerunResultWriter(rrd_path, log.geometry, cfg.map_snapshot_every, log.start_s,
-                                        log.gps_array(), _landmarks(log))
+            rrd_out = RerunResultWriter(
+                rrd_path, log.geometry, cfg.map_snapshot_every, log.start_s, log.gps_array(), _landmarks(log)
+            )
     except BaseException:
         mcap_out.abort()
         raise
@@ -99,20 +111,29 @@ def process(
     wall = time.perf_counter() - t_start
     flt = runner.filter
     summary = ProcessSummary(
-        steps=len(filter_ms), scans_in_log=log.scan_count,
+        steps=len(filter_ms),
+        scans_in_log=log.scan_count,
         final_map_points=len(flt.maps[flt.best_particle()]),
         ms_per_step_median=float(np.median(step_ms)) if step_ms else float("nan"),
         ms_per_step_filter_median=float(np.median(filter_ms)) if filter_ms else float("nan"),
-        wall_s=wall, log_duration_s=(last_t - first_t) if first_t is not None else 0.0,
-        interrupted=interrupted, output=Path(output_path), rrd=Path(rrd_path) if rrd_path else None,
+        wall_s=wall,
+        log_duration_s=(last_t - first_t) if first_t is not None else 0.0,
+        interrupted=interrupted,
+        output=Path(output_path),
+        rrd=Path(rrd_path) if rrd_path else None,
         step_ms=filter_ms,
     )
     result_meta = {
-        "steps": summary.steps, "interrupted": interrupted, "error": None if error is None else repr(error),
+        "steps": summary.steps,
+        "interrupted": interrupted,
+        "error": None if error is None else repr(error),
         "ms_per_step_median": summary.ms_per_step_median,
         "ms_per_step_filter_median": summary.ms_per_step_filter_median,
-        "wall_s": wall, "log_duration_s": summary.log_duration_s, "real_time_factor": summary.real_time_factor,
-        "final_map_points": summary.final_map_points, "particles": cfg.filter.particles,
+        "wall_s": wall,
+        "log_duration_s": summary.log_duration_s,
+        "real_time_factor": summary.real_time_factor,
+        "final_map_points": summary.final_map_points,
+        "particles": cfg.filter.particles,
         "points_per_observation": cfg.filter.points_per_observation,
     }
     try:

@@ -34,9 +34,13 @@ class RunConfig:
     """Stop after this many scans (None: the whole log)."""
 
     def as_dict(self) -> dict:
-        return {"filter": self.filter.as_dict(), "vehicle": self.vehicle,
-                "init_heading_window_s": self.init_heading_window_s,
-                "map_snapshot_every": self.map_snapshot_every, "max_scans": self.max_scans}
+        return {
+            "filter": self.filter.as_dict(),
+            "vehicle": self.vehicle,
+            "init_heading_window_s": self.init_heading_window_s,
+            "map_snapshot_every": self.map_snapshot_every,
+            "max_scans": self.max_scans,
+        }
 
 
 @dataclass
@@ -99,8 +103,17 @@ class SlamRunner:
 
                     def predict(poses, rng, u=u, t0=t0, t1=t1, vehicle=vehicle):
                         return integrate_ackermann(
-                            poses, u, t1, t0, vehicle, rng, fcfg.speed_sigma_mps, fcfg.speed_sigma_rel,
-                            fcfg.steering_sigma_rad, per_sample=fcfg.control_noise == "per_sample")
+                            poses,
+                            u,
+                            t1,
+                            t0,
+                            vehicle,
+                            rng,
+                            fcfg.speed_sigma_mps,
+                            fcfg.speed_sigma_rel,
+                            fcfg.steering_sigma_rad,
+                            per_sample=fcfg.control_noise == "per_sample",
+                        )
 
                     if controls:
                         last_control = controls[-1]

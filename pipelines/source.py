@@ -62,8 +62,9 @@ class InputLog:
         if "sensor" not in self.meta or "vehicle" not in self.meta:
             raise InputError(f"{self.path}: no 'sensor'/'vehicle' metadata; is this an MCAP from `gslam ingest`?")
         s = self.meta["sensor"]
-        self.geometry = ScanGeometry(int(s["beam_count"]), float(s["start_angle_rad"]),
-                                     float(s["angle_increment_rad"]), float(s["max_range_m"]))
+        self.geometry = ScanGeometry(
+            int(s["beam_count"]), float(s["start_angle_rad"]), float(s["angle_increment_rad"]), float(s["max_range_m"])
+        )
         self.motion_model = self.meta["vehicle"].get("motion_model", "ackermann")
         counts = {}
         if summary is not None and summary.statistics is not None:

@@ -65,8 +65,9 @@ def test_negative_range(tmp_path):
     r = ["5.0"] * 361
     r[7] = "-1.5"
     src = write_sydney(tmp_path / "log", [f"1.01,{','.join(['5.0'] * 361)}", f"1.22,{','.join(r)}"])
-    assert_one_line_error(run_cli("ingest", str(src), "-o", str(tmp_path / "o.mcap")), "LASER.txt:2",
-                          "negative range", "beam 7")
+    assert_one_line_error(
+        run_cli("ingest", str(src), "-o", str(tmp_path / "o.mcap")), "LASER.txt:2", "negative range", "beam 7"
+    )
 
 
 def test_skip_bad_lines_reports_count(tmp_path):

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import CARPARK, INTEL, MIT, VICTORIA, require
+from conftest import CARPARK, INTEL, VICTORIA, require
 
 from ingest import ingest, read_log
 from pipelines import channels as ch

@@ -88,7 +88,9 @@ def test_initial_heading_recovers_rotation():
     assert est[2] == pytest.approx(true_heading, abs=1e-6)
 
 
-weights_strategy = st.lists(st.floats(0.0, 1.0, allow_nan=False), min_size=1, max_size=60).filter(lambda w: sum(w) > 1e-6)
+weights_strategy = st.lists(st.floats(0.0, 1.0, allow_nan=False), min_size=1, max_size=60).filter(
+    lambda w: sum(w) > 1e-6
+)
 
 
 @settings(max_examples=200, deadline=None)
@@ -205,8 +207,10 @@ def test_filter_is_deterministic_for_a_seed():
 
     def run(seed):
         flt = GSlamFilter(FilterConfig(particles=5, seed=seed, proposal="motion"), np.zeros(3))
+
         def predict(poses, g):
             return poses + g.standard_normal(poses.shape) * 0.05
+
         for sc in scans:
             flt.step(sc, predict)
         return flt.best_trajectory()[1], flt.maps[flt.best_particle()].xy

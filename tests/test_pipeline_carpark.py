@@ -23,8 +23,9 @@ DEAD_RECKONING_ERROR_M = 1.67  # noise-free dead reckoning from the same initial
 @pytest.fixture(scope="module")
 def carpark_result(carpark_mcap, tmp_path_factory):
     out = tmp_path_factory.mktemp("result") / "carpark_result.mcap"
-    res = CliRunner().invoke(app, ["process", str(carpark_mcap), str(out), "--particles", "8", "--points", "10",
-                                   "--seed", "0"])
+    res = CliRunner().invoke(
+        app, ["process", str(carpark_mcap), str(out), "--particles", "8", "--points", "10", "--seed", "0"]
+    )
     assert res.exit_code == 0, res.output
     assert "rerun " in res.output
     return out

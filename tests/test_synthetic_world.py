@@ -44,8 +44,9 @@ def run():
     sim = simulate_loop(world, CAR, rng, duration_s=30.0)
     geom = ScanGeometry(361, -math.pi / 2, math.pi / 360, 80.0)
     # Pinned options (measured with these): the world is small and symmetric, so results vary with them.
-    cfg = FilterConfig(particles=8, seed=3, proposal="motion", weighting="beam_sum", weight_tempering=0.3,
-                       weight_sigma_m=0.3)
+    cfg = FilterConfig(
+        particles=8, seed=3, proposal="motion", weighting="beam_sum", weight_tempering=0.3, weight_sigma_m=0.3
+    )
     flt = GSlamFilter(cfg, sim.truth[0, 1:])
     dead = sim.truth[0:1, 1:].copy()
     dr = [dead[0].copy()]
@@ -57,8 +58,9 @@ def run():
         u = sim.controls[lo:hi]
 
         def predict(poses, g, u=u, t0=t_prev, t1=t):
-            return integrate_ackermann(poses, u, t1, t0, CAR, g, cfg.speed_sigma_mps, cfg.speed_sigma_rel,
-                                       cfg.steering_sigma_rad)
+            return integrate_ackermann(
+                poses, u, t1, t0, CAR, g, cfg.speed_sigma_mps, cfg.speed_sigma_rel, cfg.steering_sigma_rad
+            )
 
         flt.step(Scan(t, sim.ranges[k], geom), predict)
         dead = integrate_ackermann(dead, u, t, t_prev, CAR)
