@@ -275,3 +275,18 @@ def evaluate(
     for k, v in metrics.items():
         shown = "n/a" if v is None else (f"{v:.4g}" if isinstance(v, float) else str(v))
         typer.echo(f"{k:<28} {shown}")
+
+
+@app.command()
+@guarded
+def plot(
+    result: Annotated[Path, typer.Argument(help="Result MCAP from `gslam process`.")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="PNG file to write.")],
+    reference: Annotated[
+        Path | None, typer.Option("--reference", help="Input MCAP (default: from the metadata).")
+    ] = None,
+) -> None:
+    """The map's probability with the path, GPS and poles; and the position error against time."""
+    from pipelines.plot import plot_result
+
+    typer.echo(f"wrote {plot_result(result, output, reference)}")

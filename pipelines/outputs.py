@@ -37,6 +37,7 @@ class McapResultWriter:
             self.writer.add_metadata(name, data)
         self.snapshot_every = snapshot_every
         self.last_ns = 0
+        self.steps_written = 0
 
     def step(self, st: Step, flt: GSlamFilter) -> None:
         r = st.result
@@ -44,6 +45,7 @@ class McapResultWriter:
         self.last_ns = ns
         w = self.writer
         w.write_proto(ch.SLAM_POSE, ch.pose_in_frame(st.event.stamp_s, *r.best_pose, ch.MAP_FRAME), ns)
+        self.steps_written += 1  # the trajectory in finish() covers exactly the poses written
         w.write_proto(ch.SLAM_PARTICLES, ch.poses_in_frame(st.event.stamp_s, r.poses, ch.MAP_FRAME), ns)
         w.write_json(
             ch.SLAM_STATS,
@@ -70,6 +72,8 @@ class McapResultWriter:
     def finish(self, flt: GSlamFilter, result_meta: dict[str, Any]) -> Path:
         best = flt.best_particle()
         times, traj = flt.best_trajectory()
+        # An interruption can fall between the filter's step and its writing: publish the steps written.
+        times, traj = times[: self.steps_written], traj[: self.steps_written]
         ns = self.last_ns
         t_last = float(times[-1]) if len(times) else 0.0
         m = flt.maps[best]

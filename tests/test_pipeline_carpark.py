@@ -70,3 +70,42 @@ def test_eval_json_cli(carpark_result):
     assert res.exit_code == 0, res.output
     data = json.loads(res.output)
     assert data["particles"] == 8 and data["gps_mean_error_m"] is not None
+
+
+def test_plot_writes_a_png(carpark_result, tmp_path):
+    out = tmp_path / "fig.png"
+    res = CliRunner().invoke(app, ["plot", str(carpark_result), "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    import matplotlib.image as mpimg
+
+    img = mpimg.imread(out)
+    assert img.shape[0] > 300 and img.shape[1] > 600
+    assert img[..., :3].std() > 0.05  # not a blank canvas
+
+
+def test_interrupted_run_leaves_valid_outputs(carpark_mcap, tmp_path, monkeypatch):
+    """An error mid-run still finishes both outputs with the steps done so far."""
+    from pipelines import outputs
+    from pipelines.process import process
+    from pipelines.runner import RunConfig
+
+    calls = {"n": 0}
+    original = outputs.McapResultWriter.step
+
+    def failing_step(self, st, flt):
+        calls["n"] += 1
+        if calls["n"] == 40:
+            raise KeyboardInterrupt
+        original(self, st, flt)
+
+    monkeypatch.setattr(outputs.McapResultWriter, "step", failing_step)
+    out, rrd = tmp_path / "part.mcap", tmp_path / "part.rrd"
+    with pytest.raises(KeyboardInterrupt):
+        process(carpark_mcap, out, rrd, RunConfig())
+    info = mcap_info(out)
+    assert info["channels"][ch.SLAM_POSE] == 39
+    assert info["metadata"]["result"]["interrupted"] is True
+    assert read_result(out).trajectory.shape[0] == 39
+    rerun = shutil.which("rerun") or str(Path(sys.executable).parent / "rerun")
+    assert subprocess.run([rerun, "rrd", "verify", str(rrd)], capture_output=True, timeout=120).returncode == 0
+    assert not list(tmp_path.glob(".*.tmp"))
