@@ -47,14 +47,14 @@ class FilterConfig:
     """q of a point in observed free space (in front of the return), relative to an unobserved point."""
 
     # Open point 3: the semantic of p and the pruning threshold.
-    map_update: MapUpdate = "observed"
+    map_update: MapUpdate = "binary"
     """"global": eq. 7 over all the particle's points (literal); "observed": eq. 7 over the points this
     scan observes, so unobserved points keep their p; "binary": per-point Bayes in log-odds."""
-    prune_threshold: float = 0.25
-    """p_thr. With prune_relative, a fraction of the mean p of the particle's map."""
-    prune_relative: bool = True
+    prune_threshold: float = 0.3
+    """p_thr: a probability for the binary map; with prune_relative, a fraction of the mean p."""
+    prune_relative: bool = False
     """Compare p with prune_threshold x mean p (True) or with prune_threshold itself (literal)."""
-    max_points_per_cell: int = 3
+    max_points_per_cell: int = 2
     """Density control: keep at most this many points (the most probable) per cell; 0 = off."""
     cell_size_m: float = 0.25
     """Cell size of the density control."""

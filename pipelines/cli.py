@@ -290,3 +290,71 @@ def plot(
     from pipelines.plot import plot_result
 
     typer.echo(f"wrote {plot_result(result, output, reference)}")
+
+
+@app.command()
+@guarded
+def export(
+    result: Annotated[Path, typer.Argument(help="Result MCAP from `gslam process`.")],
+    tum: Annotated[Path | None, typer.Option("--tum", help="Write the final best trajectory (TUM format).")] = None,
+    map_csv: Annotated[
+        Path | None, typer.Option("--map", help="Write the final map as CSV (x, y, probability).")
+    ] = None,
+) -> None:
+    """Export a result for other tools: trajectory as TUM (evo reads it), map as CSV."""
+    from pipelines.export import export_result
+
+    if tum is None and map_csv is None:
+        raise ValueError("nothing to export: give --tum and/or --map")
+    for path in export_result(result, tum, map_csv):
+        typer.echo(f"wrote {path}")
+
+
+@app.command()
+@guarded
+def bench(
+    quick: Annotated[bool, typer.Option("--quick", help="A small subset (N 2 M 4, N 8 M 10; one seed).")] = False,
+    methods: Annotated[str, typer.Option("--methods", help="Comma-separated methods: gslam.")] = "gslam",
+    seeds: Annotated[int | None, typer.Option("--seeds", help="Seeds per cell (default 3; 1 with --quick).")] = None,
+    data: Annotated[Path, typer.Option("--data", help="Car Park log directory (or an ingested MCAP).")] = Path(
+        "../shared/datasets/carpark"
+    ),
+    output: Annotated[
+        Path | None, typer.Option("-o", "--output", help="Markdown file (e.g. docs/BENCHMARKS.md).")
+    ] = None,
+) -> None:
+    """Reproduce the paper's Table 3 on the Car Park log, beside the paper's figures."""
+    import tempfile
+    import time
+
+    from pipelines.bench import FULL_GRID, METHODS, QUICK_GRID, markdown_table, run_bench
+
+    chosen = [m.strip() for m in methods.split(",") if m.strip()]
+    missing = [m for m in chosen if m not in METHODS]
+    if missing:
+        raise ValueError(f"method(s) {', '.join(missing)} not available yet; available: {', '.join(METHODS)}")
+    n_seeds = seeds if seeds is not None else (1 if quick else 3)
+    if n_seeds < 1:
+        raise ValueError("--seeds must be at least 1")
+    grid = QUICK_GRID if quick else FULL_GRID
+    command = " ".join(["gslam", *sys.argv[1:]])
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="gslam-bench-in-") as tmp:
+        if data.is_dir():
+            from ingest import ingest as run_ingest
+
+            if not data.exists():
+                raise FileNotFoundError(f"{data}: no such directory")
+            input_mcap = Path(tmp) / "carpark.mcap"
+            run_ingest(data, input_mcap)
+        else:
+            input_mcap = data
+        results = run_bench(input_mcap, grid, n_seeds, progress=lambda s: typer.echo(s, err=True))
+    text = markdown_table(results, n_seeds, command, time.perf_counter() - t0)
+    if output is not None:
+        from pipelines.export import _atomic_write
+
+        _atomic_write(output, text)
+        typer.echo(f"wrote {output}")
+    else:
+        typer.echo(text)

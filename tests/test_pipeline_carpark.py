@@ -109,3 +109,20 @@ def test_interrupted_run_leaves_valid_outputs(carpark_mcap, tmp_path, monkeypatc
     rerun = shutil.which("rerun") or str(Path(sys.executable).parent / "rerun")
     assert subprocess.run([rerun, "rrd", "verify", str(rrd)], capture_output=True, timeout=120).returncode == 0
     assert not list(tmp_path.glob(".*.tmp"))
+
+
+def test_export_tum_reads_back_with_evo(carpark_result, tmp_path):
+    from evo.tools import file_interface
+
+    tum, csv = tmp_path / "traj.txt", tmp_path / "map.csv"
+    res = CliRunner().invoke(app, ["export", str(carpark_result), "--tum", str(tum), "--map", str(csv)])
+    assert res.exit_code == 0, res.output
+    traj = file_interface.read_tum_trajectory_file(str(tum))
+    data = read_result(carpark_result)
+    assert traj.num_poses == 586
+    np.testing.assert_allclose(traj.positions_xyz[:, :2], data.trajectory[:, :2], atol=1e-5)
+    yaw = np.array([np.arctan2(2 * (q[0] * q[3]), 1 - 2 * q[3] ** 2) for q in traj.orientations_quat_wxyz])
+    np.testing.assert_allclose(np.cos(yaw - data.trajectory[:, 2]), 1.0, atol=1e-8)
+    rows = np.loadtxt(csv, delimiter=",", skiprows=1)
+    assert rows.shape == (len(data.map_p), 3)
+    np.testing.assert_allclose(rows[:, 2], data.map_p, rtol=1e-5)
