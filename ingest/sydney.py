@@ -114,6 +114,9 @@ def read_sydney_text(directory: Path, skip_bad_lines: bool = False) -> LogData:
     beacons_path = directory / "BEACONS.txt"
     if beacons_path.exists():
         log.landmarks = parse_numeric_csv(beacons_path, 2, skip_bad_lines).rows
+    truth_path = directory / "TRUTH.txt"  # simulated logs: t, x, y, phi of the laser
+    if truth_path.exists():
+        log.truth_pose = parse_numeric_csv(truth_path, 4, skip_bad_lines).rows
     log.warnings = warnings
     return log
 

@@ -358,3 +358,19 @@ def bench(
         typer.echo(f"wrote {output}")
     else:
         typer.echo(text)
+
+
+@app.command()
+@guarded
+def demo(
+    out: Annotated[Path, typer.Option("--out", help="Directory for the simulated log and the results.")] = Path(
+        "recordings/demo"
+    ),
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the simulation and the filter.")] = 0,
+    particles: Annotated[int, typer.Option("--particles", "-N", help="Number of particles N.")] = 8,
+    points: Annotated[int, typer.Option("--points", "-M", help="New points per observation M.")] = 10,
+) -> None:
+    """Simulate a Car Park-like log, then ingest, process, evaluate against the truth and plot it."""
+    from pipelines.demo import run_demo
+
+    run_demo(out, seed, particles, points, say=typer.echo)

@@ -11,21 +11,10 @@ from gslam.config import FilterConfig
 from gslam.filter import GSlamFilter
 from gslam.motion import integrate_ackermann
 from gslam.scan import Scan, ScanGeometry
-from gslam.sim import World, carpark_world, ray_cast, simulate_loop
+from gslam.sim import World, carpark_world, distance_to_obstacles, ray_cast, simulate_loop
 from gslam.vehicle import VEHICLE_PRESETS
 
 CAR = VEHICLE_PRESETS["carpark"]
-
-
-def distance_to_obstacles(world: World, xy: np.ndarray) -> np.ndarray:
-    d = np.full(len(xy), np.inf)
-    for cx, cy, r in world.poles:
-        d = np.minimum(d, np.abs(np.hypot(xy[:, 0] - cx, xy[:, 1] - cy) - r))
-    for x0, y0, x1, y1 in world.walls:
-        e = np.array([x1 - x0, y1 - y0])
-        t = np.clip(((xy[:, 0] - x0) * e[0] + (xy[:, 1] - y0) * e[1]) / (e @ e), 0, 1)
-        d = np.minimum(d, np.hypot(xy[:, 0] - (x0 + t * e[0]), xy[:, 1] - (y0 + t * e[1])))
-    return d
 
 
 def test_ray_cast_by_hand():
