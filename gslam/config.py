@@ -9,7 +9,7 @@ from typing import Any, Literal
 ObservationUnit = Literal["beam", "scan"]
 MapUpdate = Literal["global", "observed", "binary"]
 Weighting = Literal["sum", "beam_sum", "likelihood_field"]
-PriorInterpolation = Literal["nearest_mean", "idw", "constant"]
+PriorInterpolation = Literal["cell_mean", "nearest_mean", "idw", "constant"]
 Proposal = Literal["motion", "scan_match"]
 UpdateSchedule = Literal["every_scan", "travel"]
 ControlNoise = Literal["per_sample", "per_interval"]
@@ -33,6 +33,10 @@ class FilterConfig:
     # Open point 1: what an "observation" is.
     observation_unit: ObservationUnit = "beam"
     """"beam": M points around every return; "scan": M points per scan, each around a random return."""
+
+    min_range_m: float = 1.0
+    """Returns closer than this are ignored as observations (they still occlude): on the Car Park log
+    beams 0-7 see the vehicle's own body at 0.84-0.92 m in every scan."""
 
     # Sensor noise (R) and the point likelihood q (eq. 6; open point 2).
     range_sigma_m: float = 0.10
@@ -73,9 +77,10 @@ class FilterConfig:
     """Use every k-th return in the weight and the scan matcher."""
 
     # Open point 5: prior of new points.
-    prior_interpolation: PriorInterpolation = "nearest_mean"
-    """"nearest_mean": mean p of the k nearest points within prior_radius_m; "idw": inverse distance
-    weighting of those; "constant": always p0."""
+    prior_interpolation: PriorInterpolation = "cell_mean"
+    """"cell_mean": mean p of the particle's points in the same cell (cell_size_m); "nearest_mean": mean
+    p of the k nearest points within prior_radius_m; "idw": inverse distance weighting of those;
+    "constant": always p0."""
     prior_neighbours: int = 4
     prior_radius_m: float = 0.5
     prior_p0: float = 0.5
@@ -115,15 +120,15 @@ class FilterConfig:
         self.validate()
 
     def validate(self) -> None:
-        if self.particles < 1:
-            raise ValueError(f"particles must be at least 1, got {self.particles}")
+        if not 1 <= self.particles <= 4096:
+            raise ValueError(f"particles must be between 1 and 4096, got {self.particles}")
         if self.points_per_observation < 1:
             raise ValueError(f"points per observation must be at least 1, got {self.points_per_observation}")
         choices = {
             "observation_unit": ("beam", "scan"),
             "map_update": ("global", "observed", "binary"),
             "weighting": ("sum", "beam_sum", "likelihood_field"),
-            "prior_interpolation": ("nearest_mean", "idw", "constant"),
+            "prior_interpolation": ("cell_mean", "nearest_mean", "idw", "constant"),
             "proposal": ("motion", "scan_match"),
             "update_schedule": ("every_scan", "travel"),
             "control_noise": ("per_sample", "per_interval"),

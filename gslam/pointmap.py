@@ -16,10 +16,26 @@ from scipy.spatial import cKDTree
 from .config import FilterConfig
 from .scan import Scan, inverse_measure, measure
 
+_CELL_BITS = 20  # per axis: |x| / cell_size < 2^19 (131 km at 0.25 m)
+_OWNER_SHIFT = 2 * _CELL_BITS
+_RANK_BITS = 11
+
+
+def cell_keys(xy: np.ndarray, cell_size_m: float) -> np.ndarray:
+    """Integer key of the grid cell of each point (the same grid for every particle and step)."""
+    c = np.floor(xy / cell_size_m).astype(np.int64) + (1 << (_CELL_BITS - 1))
+    return (c[:, 0] << _CELL_BITS) | c[:, 1]
+
+
+def owner_cell_keys(owner: np.ndarray, xy: np.ndarray, cell_size_m: float) -> np.ndarray:
+    """Keys ordered by particle, then cell: a map kept sorted by cell makes the concatenation sorted."""
+    return (owner.astype(np.int64) << _OWNER_SHIFT) | cell_keys(xy, cell_size_m)
+
 
 @dataclass(eq=False)
 class PointMap:
-    """Points (K, 2) and their probabilities (K,). Arrays are read-only; the KD-tree is built lazily."""
+    """Points (K, 2) and their probabilities (K,), sorted by grid cell (`cell_keys`). Arrays are
+    read-only; the KD-tree (for the options that need one) is built lazily."""
 
     xy: np.ndarray
     p: np.ndarray
@@ -98,8 +114,7 @@ def project(flat: FlatMaps, poses: np.ndarray, scan: Scan) -> tuple[np.ndarray, 
     j = np.rint((b - geom.start_angle_rad) / geom.angle_increment_rad).astype(np.int64)
     in_fov = (j >= 0) & (j < geom.beam_count)
     j = np.clip(j, 0, geom.beam_count - 1)
-    ranges = np.where(scan.returns, scan.ranges_m, geom.max_range_m)
-    z = ranges[j]
+    z = scan.occlusion_ranges_m[j]
     observed = in_fov & (r < geom.max_range_m)
     return r, j, z, observed
 
@@ -110,6 +125,8 @@ def interpolate_prior(maps: list[PointMap], owner: np.ndarray, xy: np.ndarray, c
     Where no existing point lies within prior_radius_m: prior_p0 (a probability for the binary map,
     else a multiple of the particle's mean p).
     """
+    if cfg.prior_interpolation == "cell_mean":
+        return _cell_mean_prior(maps, owner, xy, cfg)
     prior = np.empty(len(xy))
     for i, m in enumerate(maps):  # per particle: one vectorised KD-tree query each
         sel = owner == i
@@ -132,6 +149,28 @@ def interpolate_prior(maps: list[PointMap], owner: np.ndarray, xy: np.ndarray, c
         wsum = wk.sum(axis=1)
         prior[sel] = np.where(wsum > 0, (wk * pk).sum(axis=1) / np.maximum(wsum, 1e-300), default)
     return prior
+
+
+def _prior_default(maps: list[PointMap], cfg: FilterConfig) -> np.ndarray:
+    if cfg.map_update == "binary":
+        return np.full(len(maps), cfg.prior_p0)
+    return cfg.prior_p0 * np.array([m.mean_p for m in maps])
+
+
+def _cell_mean_prior(maps: list[PointMap], owner: np.ndarray, xy: np.ndarray, cfg: FilterConfig) -> np.ndarray:
+    """Mean p of the particle's points in the new point's grid cell (maps are sorted by cell, so this is
+    two binary searches over all particles at once); prior_p0 where the cell is empty."""
+    flat = FlatMaps.of(maps)
+    default = _prior_default(maps, cfg)[owner]
+    if len(flat.p) == 0:
+        return default
+    keys = owner_cell_keys(flat.owner, flat.xy, cfg.cell_size_m)
+    query = owner_cell_keys(owner, xy, cfg.cell_size_m)
+    lo = np.searchsorted(keys, query, side="left")
+    hi = np.searchsorted(keys, query, side="right")
+    csum = np.concatenate([[0.0], np.cumsum(flat.p)])
+    count = hi - lo
+    return np.where(count > 0, (csum[hi] - csum[lo]) / np.maximum(count, 1), default)
 
 
 def draw_new_points(
@@ -198,15 +237,17 @@ def prune_and_thin(flat: FlatMaps, n: int, cfg: FilterConfig) -> FlatMaps:
     else:
         keep = flat.p >= cfg.prune_threshold
     xy, p, owner = flat.xy[keep], flat.p[keep], flat.owner[keep]
-    if cfg.max_points_per_cell > 0 and len(p):
-        cells = np.floor(xy / cfg.cell_size_m).astype(np.int64)
-        cells -= cells.min(axis=0)
-        span = int(cells[:, 1].max()) + 1
-        key = (owner.astype(np.int64) * (int(cells[:, 0].max()) + 1) + cells[:, 0]) * span + cells[:, 1]
-        order = np.lexsort((-p, key))
+    if len(p) == 0:
+        return FlatMaps(xy, p, owner)
+    key = owner_cell_keys(owner, xy, cfg.cell_size_m)
+    # One int64 sort by (particle, cell, descending p): p ranked on 11 bits inside each cell.
+    scale = p.max() if cfg.map_update != "binary" else 1.0
+    rank = np.floor((1.0 - np.clip(p / scale, 0.0, 1.0)) * ((1 << _RANK_BITS) - 1)).astype(np.int64)
+    order = np.argsort((key << _RANK_BITS) | rank)
+    if cfg.max_points_per_cell > 0:
         ks = key[order]
         start = np.r_[0, np.flatnonzero(np.diff(ks)) + 1]
-        rank = np.arange(len(ks)) - np.repeat(start, np.diff(np.r_[start, len(ks)]))
-        chosen = np.sort(order[rank < cfg.max_points_per_cell])
-        xy, p, owner = xy[chosen], p[chosen], owner[chosen]
+        within = np.arange(len(ks)) - np.repeat(start, np.diff(np.r_[start, len(ks)]))
+        order = order[within < cfg.max_points_per_cell]
+    xy, p, owner = xy[order], p[order], owner[order]
     return FlatMaps(xy, p, owner)

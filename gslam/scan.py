@@ -43,11 +43,21 @@ class Scan:
     t_s: float
     ranges_m: np.ndarray
     geometry: ScanGeometry
+    min_range_m: float = 0.0
+    """Returns closer than this are the vehicle itself: no observation, but they still occlude."""
 
     @property
     def returns(self) -> np.ndarray:
         """Mask of beams with a return (an observation of an obstacle)."""
-        return np.isfinite(self.ranges_m) & (self.ranges_m < self.geometry.max_range_m) & (self.ranges_m > 0)
+        r = self.ranges_m
+        return np.isfinite(r) & (r < self.geometry.max_range_m) & (r > max(self.min_range_m, 0.0))
+
+    @property
+    def occlusion_ranges_m(self) -> np.ndarray:
+        """Per beam, how far the beam saw: its range where it hit anything (the vehicle included), else
+        the maximum range (free space all the way)."""
+        r = self.ranges_m
+        return np.where(np.isfinite(r) & (r < self.geometry.max_range_m), r, self.geometry.max_range_m)
 
     def return_polar(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(beam index, range, bearing) of every return."""

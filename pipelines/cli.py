@@ -73,6 +73,28 @@ def guarded(fn):
     return wrapper
 
 
+def invocation(ctx: typer.Context) -> str:
+    """The command line as typed (from sys.argv under the real `gslam` script), else rebuilt from the
+    parsed parameters of the current command (e.g. under a test runner)."""
+    import shlex
+
+    if Path(sys.argv[0]).name == "gslam":
+        return shlex.join(["gslam", *sys.argv[1:]])
+    parts = [ctx.command_path]
+    for param in ctx.command.params:
+        value = ctx.params.get(param.name)
+        if value in (None, False) or value == [] or (param.default is not None and value == param.default):
+            continue
+        if param.param_type_name == "argument":
+            parts.append(shlex.quote(str(value)))
+            continue
+        flag = max(param.opts, key=len)
+        values = value if isinstance(value, list | tuple) else [value]
+        for v in values:
+            parts.append(flag if v is True else f"{flag} {shlex.quote(str(getattr(v, 'value', v)))}")
+    return " ".join(parts)
+
+
 def progress_bar(description: str, unit: str = "msgs"):
     from rich.progress import (
         BarColumn,
@@ -184,6 +206,7 @@ def _load_config_file(path: Path | None) -> dict:
 @app.command()
 @guarded
 def process(
+    ctx: typer.Context,
     input: Annotated[Path, typer.Argument(help="Input MCAP from `gslam ingest`.")],
     output: Annotated[Path, typer.Argument(help="Result MCAP to write.")],
     rrd: Annotated[
@@ -220,9 +243,7 @@ def process(
     for k, v in (("particles", particles), ("points_per_observation", points), ("seed", seed)):
         if v is not None:
             filter_opts[k] = v
-    run_opts = {
-        k: v for k, v in data.items() if k in ("vehicle", "init_heading_window_s", "map_snapshot_every", "max_scans")
-    }
+    run_opts = {k: v for k, v in data.items() if k in RunConfig.RUN_OPTIONS}
     unknown = sorted(set(data) - set(run_opts))
     if unknown:
         raise ValueError(f"{config}: unknown option(s) {', '.join(unknown)}")
@@ -244,7 +265,7 @@ def process(
                 elapsed = bar.tasks[task].elapsed or 1e-9
                 bar.update(task, completed=done, total=total, rate=f"{done / elapsed:.0f} scans/s")
 
-        summary = run_process(input, output, rrd_path, cfg, progress, command=" ".join(["gslam", *sys.argv[1:]]))
+        summary = run_process(input, output, rrd_path, cfg, progress, command=invocation(ctx))
     typer.echo(
         f"{summary.steps} steps of {summary.scans_in_log} scans; final map {summary.final_map_points} points; "
         f"{summary.ms_per_step_filter_median:.1f} ms per step (filter), "
@@ -313,6 +334,7 @@ def export(
 @app.command()
 @guarded
 def bench(
+    ctx: typer.Context,
     quick: Annotated[bool, typer.Option("--quick", help="A small subset (N 2 M 4, N 8 M 10; one seed).")] = False,
     methods: Annotated[str, typer.Option("--methods", help="Comma-separated methods: gslam.")] = "gslam",
     seeds: Annotated[int | None, typer.Option("--seeds", help="Seeds per cell (default 3; 1 with --quick).")] = None,
@@ -337,7 +359,7 @@ def bench(
     if n_seeds < 1:
         raise ValueError("--seeds must be at least 1")
     grid = QUICK_GRID if quick else FULL_GRID
-    command = " ".join(["gslam", *sys.argv[1:]])
+    command = invocation(ctx)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="gslam-bench-in-") as tmp:
         if data.is_dir():
@@ -373,4 +395,19 @@ def demo(
     """Simulate a Car Park-like log, then ingest, process, evaluate against the truth and plot it."""
     from pipelines.demo import run_demo
 
-    run_demo(out, seed, particles, points, say=typer.echo)
+    with progress_bar("demo") as bar:
+        task = bar.add_task("G-SLAM", total=None, rate="")
+
+        def progress(done: int, total: int, step_ms: float) -> None:
+            if done % 5 == 0 or done == total:
+                elapsed = bar.tasks[task].elapsed or 1e-9
+                bar.update(task, completed=done, total=total, rate=f"{done / elapsed:.0f} scans/s")
+
+        run_demo(
+            out,
+            seed,
+            particles,
+            points,
+            say=bar.console.print if bar.console.is_terminal else typer.echo,
+            progress=progress,
+        )

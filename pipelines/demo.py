@@ -65,6 +65,7 @@ def run_demo(
     points: int,
     say: Callable[[str], None] = print,
     filter_cfg: FilterConfig | None = None,
+    progress: Callable[[int, int, float], None] | None = None,
 ) -> DemoReport:
     from ingest import ingest
 
@@ -87,7 +88,14 @@ def run_demo(
     )
     result = out / "demo_result.mcap"
     rrd = out / "demo_result.rrd"
-    summary = process(input_mcap, result, rrd, cfg, command=f"gslam demo --seed {seed}")
+    summary = process(
+        input_mcap,
+        result,
+        rrd,
+        cfg,
+        progress,
+        command=f"gslam demo --out {out} --seed {seed} --particles {particles} --points {points}",
+    )
     say(
         f"      {summary.steps} steps, {summary.ms_per_step_filter_median:.1f} ms per step, map "
         f"{summary.final_map_points} points"

@@ -12,7 +12,7 @@ from gslam.config import FilterConfig
 from gslam.filter import GSlamFilter, StepResult
 from gslam.initialisation import fit_initial_heading
 from gslam.motion import apply_odometry, integrate_ackermann, odometry_delta
-from gslam.scan import Scan
+from gslam.scan import Scan, ScanGeometry
 from gslam.vehicle import AckermannVehicle, vehicle_preset
 
 from .errors import InputError
@@ -32,15 +32,13 @@ class RunConfig:
     """Write the best particle's map every this many scans (0: final map only)."""
     max_scans: int | None = None
     """Stop after this many scans (None: the whole log)."""
+    laser_yaw_offset_rad: float = 0.0
+    """Mounting yaw of the laser relative to the vehicle axis, added to every bearing (calibration)."""
+
+    RUN_OPTIONS = ("vehicle", "init_heading_window_s", "map_snapshot_every", "max_scans", "laser_yaw_offset_rad")
 
     def as_dict(self) -> dict:
-        return {
-            "filter": self.filter.as_dict(),
-            "vehicle": self.vehicle,
-            "init_heading_window_s": self.init_heading_window_s,
-            "map_snapshot_every": self.map_snapshot_every,
-            "max_scans": self.max_scans,
-        }
+        return {"filter": self.filter.as_dict(), **{k: getattr(self, k) for k in self.RUN_OPTIONS}}
 
 
 @dataclass
@@ -81,6 +79,13 @@ class SlamRunner:
         odom_prev: np.ndarray | None = None
         odom_last: np.ndarray | None = None
         geom = self.log.geometry
+        if self.cfg.laser_yaw_offset_rad:
+            geom = ScanGeometry(
+                geom.beam_count,
+                geom.start_angle_rad + self.cfg.laser_yaw_offset_rad,
+                geom.angle_increment_rad,
+                geom.max_range_m,
+            )
         for ev in self.log.events():
             if isinstance(ev, ControlEvent):
                 controls.append([ev.t_s, ev.speed_mps, ev.steering_rad])

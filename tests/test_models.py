@@ -219,3 +219,19 @@ def test_filter_is_deterministic_for_a_seed():
     np.testing.assert_array_equal(a[0], b[0])
     np.testing.assert_array_equal(a[1], b[1])
     assert not np.array_equal(a[0], c[0])
+
+
+def test_pole_map_error_on_constructed_maps():
+    from gslam.metrics import pole_map_error
+
+    poles = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0]])
+    rng = np.random.default_rng(0)
+    # Points exactly on the poles, with the highest p, amid weaker clutter far from them.
+    clutter = rng.uniform(20, 40, size=(200, 2))
+    xy = np.vstack([poles, clutter])
+    p = np.r_[np.full(3, 0.9), np.full(200, 0.6)]
+    err, within = pole_map_error(xy, p, poles)
+    assert err == pytest.approx(0.0) and within == 3
+    # Shift the pole points by 0.5 m: the error is 0.5 m.
+    err, within = pole_map_error(np.vstack([poles + [0.3, 0.4], clutter]), p, poles)
+    assert err == pytest.approx(0.5) and within == 3

@@ -126,3 +126,48 @@ def test_export_tum_reads_back_with_evo(carpark_result, tmp_path):
     rows = np.loadtxt(csv, delimiter=",", skiprows=1)
     assert rows.shape == (len(data.map_p), 3)
     np.testing.assert_allclose(rows[:, 2], data.map_p, rtol=1e-5)
+
+
+def test_config_file_and_overrides(carpark_mcap, tmp_path):
+    cfg = tmp_path / "run.toml"
+    cfg.write_text("max_scans = 30\nmap_snapshot_every = 0\n[filter]\nparticles = 3\nweight_tempering = 0.5\n")
+    out = tmp_path / "r.mcap"
+    res = CliRunner().invoke(
+        app,
+        [
+            "process",
+            str(carpark_mcap),
+            str(out),
+            "--config",
+            str(cfg),
+            "--no-rrd",
+            "--set",
+            "min_range_m=0.5",
+            "--seed",
+            "4",
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    meta = mcap_info(out)["metadata"]
+    f = meta["config"]["filter"]
+    assert (f["particles"], f["weight_tempering"], f["min_range_m"], f["seed"]) == (3, 0.5, 0.5, 4)
+    assert meta["config"]["max_scans"] == 30 and meta["result"]["steps"] == 30
+    assert not out.with_suffix(".rrd").exists()
+    bad = tmp_path / "bad.toml"
+    bad.write_text("speed = 3\n")
+    res = CliRunner().invoke(app, ["process", str(carpark_mcap), str(out), "--config", str(bad)])
+    assert res.exit_code != 0 and "unknown option" in res.output
+
+
+def test_bench_quick_end_to_end(tmp_path):
+    from conftest import CARPARK, require
+
+    out = tmp_path / "BENCH.md"
+    res = CliRunner().invoke(app, ["bench", "--quick", "--data", str(require(CARPARK)), "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    text = out.read_text()
+    assert "| 2 | 4 |" in text and "| 8 | 10 |" in text
+    assert "Machine:" in text and "Command: `gslam bench --quick" in text
+    assert "0.41" in text  # the paper's figure beside ours
+    res = CliRunner().invoke(app, ["bench", "--quick", "--methods", "fastslam2"])
+    assert res.exit_code != 0 and "not available" in res.output
