@@ -53,6 +53,8 @@ def guarded(fn):
 
         try:
             return fn(*args, **kwargs)
+        except typer.Exit:
+            raise
         except (IngestError, InputError, FileNotFoundError, IsADirectoryError, PermissionError) as e:
             fail(str(e))
         except ValueError as e:
@@ -411,3 +413,45 @@ def demo(
             say=bar.console.print if bar.console.is_terminal else typer.echo,
             progress=progress,
         )
+
+
+@app.command()
+@guarded
+def sweep(
+    spec: Annotated[
+        Path, typer.Argument(help="Sweep spec (TOML): inputs, methods, particles, points, seeds, [options].")
+    ],
+    workers: Annotated[int, typer.Option("--workers", help="Local worker processes.")] = 2,
+    scheduler: Annotated[
+        str | None,
+        typer.Option("--scheduler", envvar="DASK_SCHEDULER_ADDRESS", help="Dask scheduler, tcp://host:8786."),
+    ] = None,
+    output: Annotated[Path, typer.Option("-o", "--output", help="Results directory.")] = Path("recordings/sweep"),
+    resume: Annotated[bool, typer.Option("--resume", help="Skip tasks whose results exist and are complete.")] = False,
+) -> None:
+    """Run process + eval over a grid of logs and parameters, locally or on a Dask cluster."""
+    from pipelines.sweep import SweepSpec, run_sweep
+
+    if workers < 1:
+        raise ValueError("--workers must be at least 1")
+    sweep_spec = SweepSpec.load(spec)
+    with progress_bar("sweep") as bar:
+        task = bar.add_task("sweep", total=None, rate="")
+
+        def progress(done: int, total: int, record: dict) -> None:
+            failed = f" (last failed: {record['task']['id']})" if record.get("status") == "failed" else ""
+            bar.update(task, completed=done, total=total, rate=failed)
+
+        report = run_sweep(sweep_spec, output, workers, scheduler, resume, progress)
+    where = scheduler or f"{workers} local workers"
+    typer.echo(
+        f"{len(report.records)} tasks ({report.skipped} already done, {report.failed} failed) in "
+        f"{report.wall_s:.1f} s on {where}"
+    )
+    typer.echo(f"wrote {report.md_path} and {report.csv_path}")
+    if report.failed:
+        fail(f"{report.failed} of {len(report.records)} tasks failed (their errors: {report.md_path})", code=1)
+
+
+if __name__ == "__main__":  # python -m pipelines.cli
+    app()
