@@ -96,7 +96,7 @@ class FilterConfig:
     proposal_sigma_phi_rad: float = math.radians(0.3)
 
     # Open point 7: when to update.
-    update_schedule: UpdateSchedule = "every_scan"
+    update_schedule: UpdateSchedule = "travel"
     """"every_scan" (the paper) or "travel": only after min_travel_m or min_turn_rad since the last update."""
     min_travel_m: float = 1.0
     min_turn_rad: float = 0.5

@@ -25,6 +25,7 @@ class ProcessSummary:
     final_map_points: int
     ms_per_step_median: float
     ms_per_step_filter_median: float
+    ms_per_step_filter_mean: float
     wall_s: float
     log_duration_s: float
     interrupted: bool
@@ -84,6 +85,7 @@ def process(
     total = log.scan_count if cfg.max_scans is None else min(cfg.max_scans, log.scan_count)
     step_ms: list[float] = []
     filter_ms: list[float] = []
+    updates = 0
     interrupted = False
     error: BaseException | None = None
     t_start = time.perf_counter()
@@ -98,6 +100,7 @@ def process(
             step_ms.append((now - t_prev) * 1e3)
             t_prev = now
             filter_ms.append(st.step_ms)
+            updates += st.result.updated
             first_t = st.event.t_s if first_t is None else first_t
             last_t = st.event.t_s
             if progress is not None:
@@ -116,6 +119,7 @@ def process(
         final_map_points=len(flt.maps[flt.best_particle()]),
         ms_per_step_median=float(np.median(step_ms)) if step_ms else float("nan"),
         ms_per_step_filter_median=float(np.median(filter_ms)) if filter_ms else float("nan"),
+        ms_per_step_filter_mean=float(np.mean(filter_ms)) if filter_ms else float("nan"),
         wall_s=wall,
         log_duration_s=(last_t - first_t) if first_t is not None else 0.0,
         interrupted=interrupted,
@@ -129,6 +133,8 @@ def process(
         "error": None if error is None else repr(error),
         "ms_per_step_median": summary.ms_per_step_median,
         "ms_per_step_filter_median": summary.ms_per_step_filter_median,
+        "ms_per_step_filter_mean": summary.ms_per_step_filter_mean,
+        "updates": int(updates),
         "wall_s": wall,
         "log_duration_s": summary.log_duration_s,
         "real_time_factor": summary.real_time_factor,
