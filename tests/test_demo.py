@@ -32,9 +32,10 @@ def test_demo_end_to_end_against_truth(tmp_path, seed):
     report = run_demo(tmp_path / "demo", seed=seed, particles=8, points=10, say=lambda s: None)
     for p in (report.input_mcap, report.result_mcap, report.rrd, report.figure):
         assert p.exists()
-    # Measured (seed 0): 0.48 m against the truth, dead reckoning 4.34 m; 69 % of map points within 0.5 m.
+    # Measured (seed 0, defaults): 0.49 m against the truth, dead reckoning 4.34 m; 56 % of map points
+    # within 0.5 m of an obstacle (the rest within the pose error), 0.9 % farther than 1.5 m.
     assert report.truth_error_m < 0.9
     assert report.truth_error_m < 0.3 * report.dead_reckoning_error_m
-    assert report.map_within_05m > 0.55
-    assert report.free_space_fraction < 0.02
+    assert report.map_within_05m > 0.45
+    assert report.free_space_fraction < 0.03
     assert math.isfinite(report.metrics["gps_mean_error_m"])
