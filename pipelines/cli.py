@@ -97,7 +97,19 @@ def invocation(ctx: typer.Context) -> str:
     return " ".join(parts)
 
 
-def progress_bar(description: str, unit: str = "msgs"):
+def scan_progress(bar):
+    """A `progress(done, total, step_ms)` callback for the filter that shows scans per second on `bar`."""
+    task = bar.add_task("G-SLAM", total=None, rate="")
+
+    def progress(done: int, total: int, step_ms: float) -> None:
+        if done % 5 == 0 or done == total:
+            elapsed = bar.tasks[task].elapsed or 1e-9
+            bar.update(task, completed=done, total=total, rate=f"{done / elapsed:.0f} scans/s")
+
+    return progress
+
+
+def progress_bar():
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
@@ -149,7 +161,7 @@ def ingest(
     from ingest import ingest as run_ingest
 
     t0 = time.perf_counter()
-    with progress_bar("ingest") as bar:
+    with progress_bar() as bar:
         task = bar.add_task("ingest", total=None, rate="")
 
         def progress(done: int, total: int) -> None:
@@ -259,13 +271,8 @@ def process(
 
         vehicle_preset(cfg.vehicle)
     rrd_path = None if no_rrd else (rrd or output.with_suffix(".rrd"))
-    with progress_bar("process") as bar:
-        task = bar.add_task("G-SLAM", total=None, rate="")
-
-        def progress(done: int, total: int, step_ms: float) -> None:
-            if done % 5 == 0 or done == total:
-                elapsed = bar.tasks[task].elapsed or 1e-9
-                bar.update(task, completed=done, total=total, rate=f"{done / elapsed:.0f} scans/s")
+    with progress_bar() as bar:
+        progress = scan_progress(bar)
 
         summary = run_process(input, output, rrd_path, cfg, progress, command=invocation(ctx))
     typer.echo(
@@ -397,13 +404,8 @@ def demo(
     """Simulate a Car Park-like log, then ingest, process, evaluate against the truth and plot it."""
     from pipelines.demo import run_demo
 
-    with progress_bar("demo") as bar:
-        task = bar.add_task("G-SLAM", total=None, rate="")
-
-        def progress(done: int, total: int, step_ms: float) -> None:
-            if done % 5 == 0 or done == total:
-                elapsed = bar.tasks[task].elapsed or 1e-9
-                bar.update(task, completed=done, total=total, rate=f"{done / elapsed:.0f} scans/s")
+    with progress_bar() as bar:
+        progress = scan_progress(bar)
 
         run_demo(
             out,
@@ -435,7 +437,7 @@ def sweep(
     if workers < 1:
         raise ValueError("--workers must be at least 1")
     sweep_spec = SweepSpec.load(spec)
-    with progress_bar("sweep") as bar:
+    with progress_bar() as bar:
         task = bar.add_task("sweep", total=None, rate="")
 
         def progress(done: int, total: int, record: dict) -> None:
