@@ -12,8 +12,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .filter import StepResult
+from .landmarks import PoleExtractorConfig, poles_from_geometry, poles_from_intensity
 from .motion import wrap_angle
 from .resampling import effective_sample_size, normalise_log_weights, residual_systematic_resampling
+from .scan import Scan
 from .trajectory import AncestryTree
 
 
@@ -97,6 +100,7 @@ class FastSlam:
         self.maps = [LandmarkMap()] * cfg.particles
         self.weights = np.full(cfg.particles, 1.0 / cfg.particles)
         self.tree = AncestryTree()
+        self.resampled = False
 
     def step(self, t_s: float, observations: np.ndarray, predict, motion_cov: np.ndarray | None = None) -> float:
         """One step: observations (J, 2) of range and bearing; `predict(poses, rng)` samples the motion model
@@ -136,7 +140,8 @@ class FastSlam:
             self.weights = normalise_log_weights(np.log(self.weights) + log_w)
         ess = effective_sample_size(self.weights)
         self.tree.record(t_s, self.poses)
-        if ess < cfg.resample_threshold * cfg.particles:
+        self.resampled = bool(ess < cfg.resample_threshold * cfg.particles)
+        if self.resampled:
             parents = residual_systematic_resampling(self.weights, self.rng)
             self.poses = self.poses[parents]
             self.maps = [self.maps[a] for a in parents]
@@ -173,3 +178,89 @@ class FastSlam:
 
     def best_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         return self.tree.trajectory(int(np.argmax(self.weights)))
+
+
+class FastSlamFilter:
+    """FastSLAM on pole observations extracted from laser scans: the pipeline's `SlamFilter` interface.
+
+    Poles come from reflective returns when the scan has intensities, else from narrow foreground
+    segments (`gslam.landmarks`). FastSLAM 2.0's motion covariance is estimated each step by sampling
+    the motion model 64 times from the best pose (a separate seeded generator).
+    """
+
+    def __init__(
+        self,
+        cfg: FastSlamConfig,
+        initial_pose: np.ndarray,
+        min_range_m: float = 1.0,
+        extractor: PoleExtractorConfig | None = None,
+    ) -> None:
+        self.cfg = cfg
+        self.slam = FastSlam(cfg, initial_pose)
+        self.min_range_m = min_range_m
+        self.extractor = extractor or PoleExtractorConfig()
+        self._cov_rng = np.random.default_rng(cfg.seed + 1_000_003)
+
+    @property
+    def poses(self) -> np.ndarray:
+        return self.slam.poses
+
+    @poses.setter
+    def poses(self, value: np.ndarray) -> None:
+        self.slam.poses = np.array(value, dtype=float)
+
+    @property
+    def weights(self) -> np.ndarray:
+        return self.slam.weights
+
+    @property
+    def tree(self) -> AncestryTree:
+        return self.slam.tree
+
+    def best_particle(self) -> int:
+        return int(np.argmax(self.slam.weights))
+
+    def best_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.slam.best_trajectory()
+
+    def map_points(self, particle: int) -> tuple[np.ndarray, np.ndarray]:
+        """Landmark means and, as "probability", a certainty 1 / (1 + trace(P) / trace(R_xy)) in (0, 1]."""
+        lm = self.slam.maps[particle]
+        scale = self.cfg.range_sigma_m**2 * 2
+        return lm.mean, 1.0 / (1.0 + np.trace(lm.cov, axis1=1, axis2=2) / scale) if len(lm) else np.empty(0)
+
+    def step(self, scan: Scan, predict=None, intensities: np.ndarray | None = None) -> StepResult:
+        scan = Scan(scan.t_s, scan.ranges_m, scan.geometry, self.min_range_m)
+        if intensities is not None and np.any(intensities > 0):
+            r, b = poles_from_intensity(scan, intensities, self.extractor)
+        else:
+            r, b = poles_from_geometry(scan, self.extractor)
+        obs = np.column_stack([r, b]) if len(r) else np.empty((0, 2))
+        if predict is None:
+
+            def predict(poses, rng):  # noqa: ARG001 - no motion
+                return poses
+
+        motion_cov = None
+        if self.cfg.version == 2:
+            best = self.slam.poses[self.best_particle()]
+            samples = predict(np.tile(best, (64, 1)), self._cov_rng)
+            d = samples - samples.mean(axis=0)
+            d[:, 2] = wrap_angle(d[:, 2])
+            motion_cov = d.T @ d / 63 + np.diag([1e-6, 1e-6, 1e-8])
+        ess = self.slam.step(scan.t_s, obs, predict, motion_cov)
+        best = self.best_particle()
+        total = sum(len(m) for m in self.slam.maps)
+        return StepResult(
+            scan.t_s,
+            self.slam.poses.copy(),
+            self.slam.weights.copy(),
+            ess,
+            self.slam.resampled,
+            True,
+            best,
+            self.slam.poses[best].copy(),
+            len(self.slam.maps[best]),
+            total,
+            len(obs),
+        )

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -44,6 +45,24 @@ class StepResult:
     matched: int  # particles whose scan match succeeded
 
 
+class SlamFilter(Protocol):
+    """What the pipeline needs of a SLAM method (G-SLAM, FastSLAM, ...)."""
+
+    poses: np.ndarray
+    weights: np.ndarray
+    tree: AncestryTree
+
+    def step(
+        self, scan: Scan, predict: Predictor | None = None, intensities: np.ndarray | None = None
+    ) -> StepResult: ...
+
+    def best_particle(self) -> int: ...
+
+    def best_trajectory(self) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def map_points(self, particle: int) -> tuple[np.ndarray, np.ndarray]: ...
+
+
 class GSlamFilter:
     """N particles, each a pose, a pose history (shared ancestry tree) and a point map."""
 
@@ -68,6 +87,11 @@ class GSlamFilter:
     def best_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         return self.tree.trajectory(self.best_particle())
 
+    def map_points(self, particle: int) -> tuple[np.ndarray, np.ndarray]:
+        """The particle's map as points (K, 2) with probabilities (K,)."""
+        m = self.maps[particle]
+        return m.xy, m.p
+
     def _due(self) -> bool:
         if self.cfg.update_schedule == "every_scan" or self._last_update_pose is None:
             return True
@@ -79,7 +103,7 @@ class GSlamFilter:
         )
 
     # ------------------------------------------------------------------------------------------
-    def step(self, scan: Scan, predict: Predictor | None = None) -> StepResult:
+    def step(self, scan: Scan, predict: Predictor | None = None, intensities: np.ndarray | None = None) -> StepResult:
         """One G-SLAM step for scan z_t after the controls since the previous scan."""
         cfg, n = self.cfg, self.cfg.particles
         if scan.min_range_m != cfg.min_range_m:

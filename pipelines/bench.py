@@ -32,13 +32,26 @@ PAPER_TABLE3: dict[tuple[int, int], tuple[float, float]] = {
 }
 FULL_GRID = [(n, m) for n in (2, 8, 30) for m in (4, 10, 20)]
 QUICK_GRID = [(2, 4), (8, 10)]
-METHODS = ("gslam",)
+METHODS = ("gslam", "fastslam1", "fastslam2")
+# Table 4 of the paper: (method, N) -> (ms per step, position error m).
+PAPER_TABLE4: dict[tuple[str, int], tuple[float, float]] = {
+    ("gslam", 2): (22, 1.55),
+    ("fastslam1", 2): (12, 0.84),
+    ("fastslam2", 2): (31, 0.47),
+    ("gslam", 8): (81, 0.41),
+    ("fastslam1", 8): (51, 0.62),
+    ("fastslam2", 8): (101, 0.42),
+    ("gslam", 30): (294, 0.40),
+    ("fastslam1", 30): (148, 0.43),
+    ("fastslam2", 30): (281, 0.40),
+}
 
 
 @dataclass
 class CellResult:
     particles: int
     points: int
+    method: str = "gslam"
     errors_m: list[float] = field(default_factory=list)
     online_errors_m: list[float] = field(default_factory=list)
     filter_ms: list[float] = field(default_factory=list)
@@ -74,17 +87,23 @@ def run_bench(
     seeds: int,
     progress: Callable[[str], None] | None = None,
     base: FilterConfig | None = None,
+    methods: tuple[str, ...] = ("gslam",),
 ) -> list[CellResult]:
-    """Run every (N, M) cell for `seeds` seeds, end to end (MCAP and Rerun written), and evaluate."""
+    """Run every (N, M) cell of G-SLAM, and every N of the baselines (M does not apply to them), for
+    `seeds` seeds, end to end (MCAP and Rerun written), and evaluate."""
     results = []
     base_dict = (base or FilterConfig()).as_dict()
+    runs = [("gslam", n, m) for n, m in grid] if "gslam" in methods else []
+    for method in methods:
+        if method != "gslam":
+            runs += [(method, n, 0) for n in sorted({n for n, _ in grid})]
     with tempfile.TemporaryDirectory(prefix="gslam-bench-") as tmp:
-        for n, m in grid:
-            cell = CellResult(n, m)
+        for method, n, m in runs:
+            cell = CellResult(n, m, method)
             for seed in range(seeds):
-                opts = dict(base_dict, particles=n, points_per_observation=m, seed=seed)
-                cfg = RunConfig(filter=FilterConfig.from_dict(opts))
-                out = Path(tmp) / f"n{n}_m{m}_s{seed}.mcap"
+                opts = dict(base_dict, particles=n, points_per_observation=max(m, 1), seed=seed)
+                cfg = RunConfig(filter=FilterConfig.from_dict(opts), method=method)
+                out = Path(tmp) / f"{method}_n{n}_m{m}_s{seed}.mcap"
                 t0 = time.perf_counter()
                 summary = process(input_mcap, out, out.with_suffix(".rrd"), cfg, command="gslam bench")
                 metrics = evaluate_result(out, input_mcap)
@@ -97,7 +116,7 @@ def run_bench(
                 cell.map_points.append(summary.final_map_points)
                 if progress is not None:
                     progress(
-                        f"N {n:>2} M {m:>2} seed {seed}: {metrics['gps_mean_error_m']:.2f} m, "
+                        f"{method} N {n:>2} M {m:>2} seed {seed}: {metrics['gps_mean_error_m']:.2f} m, "
                         f"{summary.ms_per_step_filter_median:.1f} ms/step ({time.perf_counter() - t0:.0f} s)"
                     )
                 out.unlink(missing_ok=True)
@@ -136,7 +155,7 @@ def markdown_table(results: list[CellResult], seeds: int, command: str, wall_s: 
         "| ms/step end to end | paper ms/step | RTF | final map points | paper map |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for c in results:
+    for c in (c for c in results if c.method == "gslam"):
         paper = PAPER_TABLE3.get((c.particles, c.points))
         paper_ms = f"{paper[0]:.0f}" if paper else "-"
         paper_err = f"{paper[1]:.2f}" if paper else "-"
@@ -147,5 +166,27 @@ def markdown_table(results: list[CellResult], seeds: int, command: str, wall_s: 
             f"| {statistics.median(c.end_to_end_ms):.1f} | {paper_ms} "
             f"| {statistics.median(c.rtf):.1f} | {statistics.median(c.map_points):.0f} | {paper_map} |"
         )
+    baselines = [c for c in results if c.method != "gslam"]
+    if baselines:
+        # Table 4 compares G-SLAM at (2, 4), (8, 10), (30, 10) with the baselines at the same N.
+        table4 = [c for c in results if c.method == "gslam" and (c.particles, c.points) in ((2, 4), (8, 10), (30, 10))]
+        lines += [
+            "",
+            "## Table 4: G-SLAM and the baselines",
+            "",
+            "FastSLAM observes the reflective poles (beams with intensity > 0 grouped into pole centres).",
+            "",
+            "| method | N | M | error (m) | paper error (m) | ms/step filter median / mean | paper ms/step "
+            "| final map (points or landmarks) |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        for c in sorted(table4 + baselines, key=lambda c: (c.particles, METHODS.index(c.method))):
+            paper = PAPER_TABLE4.get((c.method, c.particles))
+            lines.append(
+                f"| {c.method} | {c.particles} | {c.points or '-'} | {_mean_sd(c.errors_m)} "
+                f"| {f'{paper[1]:.2f}' if paper else '-'} "
+                f"| {statistics.median(c.filter_ms):.1f} / {statistics.median(c.filter_mean_ms):.1f} "
+                f"| {f'{paper[0]:.0f}' if paper else '-'} | {statistics.median(c.map_points):.0f} |"
+            )
     lines += ["", "The paper's times are from its own (unstated) machine and implementation.", ""]
     return "\n".join(lines)

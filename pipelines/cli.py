@@ -238,8 +238,11 @@ def process(
         list[str] | None, typer.Option("--set", help="Filter option override, NAME=VALUE (repeatable).")
     ] = None,
     max_scans: Annotated[int | None, typer.Option("--max-scans", help="Stop after this many scans.")] = None,
+    method: Annotated[
+        str | None, typer.Option("--method", help="gslam (default), or a baseline: fastslam1, fastslam2.")
+    ] = None,
 ) -> None:
-    """Run G-SLAM over an input MCAP; write the result MCAP and a Rerun recording."""
+    """Run G-SLAM (or a baseline) over an input MCAP; write the result MCAP and a Rerun recording."""
     from gslam.config import FilterConfig
     from pipelines.process import process as run_process
     from pipelines.runner import RunConfig
@@ -265,7 +268,13 @@ def process(
         run_opts["vehicle"] = vehicle
     if max_scans is not None:
         run_opts["max_scans"] = max_scans
+    if method is not None:
+        run_opts["method"] = method
     cfg = RunConfig(filter=FilterConfig.from_dict(filter_opts), **run_opts)
+    from pipelines.runner import METHODS
+
+    if cfg.method not in METHODS:
+        raise ValueError(f"unknown method {cfg.method!r}; choose one of {', '.join(METHODS)}")
     if cfg.vehicle is not None:
         from gslam.vehicle import vehicle_preset
 
@@ -345,7 +354,9 @@ def export(
 def bench(
     ctx: typer.Context,
     quick: Annotated[bool, typer.Option("--quick", help="A small subset (N 2 M 4, N 8 M 10; one seed).")] = False,
-    methods: Annotated[str, typer.Option("--methods", help="Comma-separated methods: gslam.")] = "gslam",
+    methods: Annotated[
+        str, typer.Option("--methods", help="Comma-separated: gslam, fastslam1, fastslam2, or all (adds Table 4).")
+    ] = "gslam",
     seeds: Annotated[int | None, typer.Option("--seeds", help="Seeds per cell (default 3; 1 with --quick).")] = None,
     data: Annotated[Path, typer.Option("--data", help="Car Park log directory (or an ingested MCAP).")] = Path(
         "../shared/datasets/carpark"
@@ -361,6 +372,8 @@ def bench(
     from pipelines.bench import FULL_GRID, METHODS, QUICK_GRID, markdown_table, run_bench
 
     chosen = [m.strip() for m in methods.split(",") if m.strip()]
+    if chosen == ["all"]:
+        chosen = list(METHODS)
     missing = [m for m in chosen if m not in METHODS]
     if missing:
         raise ValueError(f"method(s) {', '.join(missing)} not available yet; available: {', '.join(METHODS)}")
@@ -380,7 +393,9 @@ def bench(
             run_ingest(data, input_mcap)
         else:
             input_mcap = data
-        results = run_bench(input_mcap, grid, n_seeds, progress=lambda s: typer.echo(s, err=True))
+        results = run_bench(
+            input_mcap, grid, n_seeds, progress=lambda s: typer.echo(s, err=True), methods=tuple(chosen)
+        )
     text = markdown_table(results, n_seeds, command, time.perf_counter() - t0)
     if output is not None:
         from pipelines.export import _atomic_write

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from gslam.filter import GSlamFilter
+from gslam.filter import SlamFilter
 from gslam.scan import ScanGeometry, transform_points
 
 from . import channels as ch
@@ -39,7 +39,7 @@ class McapResultWriter:
         self.last_ns = 0
         self.steps_written = 0
 
-    def step(self, st: Step, flt: GSlamFilter) -> None:
+    def step(self, st: Step, flt: SlamFilter) -> None:
         r = st.result
         ns = to_ns(st.event.t_s)
         self.last_ns = ns
@@ -66,18 +66,18 @@ class McapResultWriter:
             ns,
         )
         if self.snapshot_every and st.event.index % self.snapshot_every == 0:
-            m = flt.maps[r.best]
-            w.write_proto(ch.SLAM_MAP, ch.point_cloud(st.event.stamp_s, m.xy, m.p), ns)
+            xy, p = flt.map_points(r.best)
+            w.write_proto(ch.SLAM_MAP, ch.point_cloud(st.event.stamp_s, xy, p), ns)
 
-    def finish(self, flt: GSlamFilter, result_meta: dict[str, Any]) -> Path:
+    def finish(self, flt: SlamFilter, result_meta: dict[str, Any]) -> Path:
         best = flt.best_particle()
         times, traj = flt.best_trajectory()
         # An interruption can fall between the filter's step and its writing: publish the steps written.
         times, traj = times[: self.steps_written], traj[: self.steps_written]
         ns = self.last_ns
         t_last = float(times[-1]) if len(times) else 0.0
-        m = flt.maps[best]
-        self.writer.write_proto(ch.SLAM_MAP_FINAL, ch.point_cloud(t_last, m.xy, m.p), ns)
+        xy, p = flt.map_points(best)
+        self.writer.write_proto(ch.SLAM_MAP_FINAL, ch.point_cloud(t_last, xy, p), ns)
         self.writer.write_proto(ch.SLAM_TRAJECTORY, ch.poses_in_frame(t_last, traj, ch.MAP_FRAME), ns)
         self.writer.add_metadata("result", result_meta)
         return self.writer.finish()
@@ -144,7 +144,7 @@ class RerunResultWriter:
             collapse_panels=True,
         )
 
-    def step(self, st: Step, flt: GSlamFilter) -> None:
+    def step(self, st: Step, flt: SlamFilter) -> None:
         rr, rec, r = self.rr, self.rec, st.result
         rec.set_time("scan", sequence=st.event.index)
         rec.set_time("time", duration=st.event.t_s - self.t0_s)
@@ -155,7 +155,7 @@ class RerunResultWriter:
         rec.log("world/particles", rr.Points2D(r.poses[:, :2], colors=[[255, 140, 0]], radii=0.12))
         self.online.append(r.best_pose[:2].copy())
         if self.snapshot_every and st.event.index % self.snapshot_every == 0:
-            self._log_map(flt.maps[r.best])
+            self._log_map(*flt.map_points(r.best))
         for key, value in (
             ("scan", st.event.index),
             ("time", st.event.t_s - self.t0_s),
@@ -165,10 +165,10 @@ class RerunResultWriter:
         ):
             self.stats[key].append(value)
 
-    def _log_map(self, m) -> None:
-        self.rec.log("world/map", self.rr.Points2D(m.xy, colors=probability_colors(m.p), radii=0.07))
+    def _log_map(self, xy: np.ndarray, p: np.ndarray) -> None:
+        self.rec.log("world/map", self.rr.Points2D(xy, colors=probability_colors(p), radii=0.07))
 
-    def finish(self, flt: GSlamFilter) -> Path:
+    def finish(self, flt: SlamFilter) -> Path:
         if self.finished:
             return self.path
         rr, rec = self.rr, self.rec
@@ -181,7 +181,7 @@ class RerunResultWriter:
                 rec.send_columns(f"stats/{name}", indexes=idx, columns=rr.Scalars.columns(scalars=self.stats[key]))
             rec.set_time("scan", sequence=self.stats["scan"][-1])
             rec.set_time("time", duration=self.stats["time"][-1])
-            self._log_map(flt.maps[flt.best_particle()])
+            self._log_map(*flt.map_points(flt.best_particle()))
             _, traj = flt.best_trajectory()
             rec.log("world/trajectory", rr.LineStrips2D([traj[:, :2]], colors=[[230, 30, 30]], radii=0.1))
             rec.log("world/online", rr.LineStrips2D([np.asarray(self.online)], colors=[[60, 120, 255]], radii=0.05))

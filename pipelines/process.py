@@ -58,7 +58,7 @@ def process(
     log = InputLog(input_path)
     runner = SlamRunner(log, cfg)
     metadata = {
-        "gslam": {"version": __version__, "command": command or " ".join(sys.argv), "method": "gslam"},
+        "gslam": {"version": __version__, "command": command or " ".join(sys.argv), "method": cfg.method},
         "config": cfg.as_dict(),
         "input": {
             "path": str(Path(input_path).resolve()),
@@ -116,7 +116,7 @@ def process(
     summary = ProcessSummary(
         steps=len(filter_ms),
         scans_in_log=log.scan_count,
-        final_map_points=len(flt.maps[flt.best_particle()]),
+        final_map_points=len(flt.map_points(flt.best_particle())[1]),
         ms_per_step_median=float(np.median(step_ms)) if step_ms else float("nan"),
         ms_per_step_filter_median=float(np.median(filter_ms)) if filter_ms else float("nan"),
         ms_per_step_filter_mean=float(np.mean(filter_ms)) if filter_ms else float("nan"),

@@ -9,7 +9,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gslam.config import FilterConfig
-from gslam.filter import GSlamFilter, StepResult
+from gslam.fastslam import FastSlamConfig, FastSlamFilter
+from gslam.filter import GSlamFilter, SlamFilter, StepResult
 from gslam.initialisation import fit_initial_heading
 from gslam.motion import apply_odometry, integrate_ackermann, odometry_delta
 from gslam.scan import Scan, ScanGeometry
@@ -24,6 +25,8 @@ class RunConfig:
     """What `gslam process` runs: the filter options plus the pipeline's own."""
 
     filter: FilterConfig = field(default_factory=FilterConfig)
+    method: str = "gslam"
+    """gslam, or a baseline: fastslam1, fastslam2 (landmarks: poles, from intensity or geometry)."""
     vehicle: str | None = None
     """Vehicle preset for Ackermann logs (default: the one named in the input's metadata)."""
     init_heading_window_s: float = 5.0
@@ -35,7 +38,14 @@ class RunConfig:
     laser_yaw_offset_rad: float = 0.0
     """Mounting yaw of the laser relative to the vehicle axis, added to every bearing (calibration)."""
 
-    RUN_OPTIONS = ("vehicle", "init_heading_window_s", "map_snapshot_every", "max_scans", "laser_yaw_offset_rad")
+    RUN_OPTIONS = (
+        "method",
+        "vehicle",
+        "init_heading_window_s",
+        "map_snapshot_every",
+        "max_scans",
+        "laser_yaw_offset_rad",
+    )
 
     def as_dict(self) -> dict:
         return {"filter": self.filter.as_dict(), **{k: getattr(self, k) for k in self.RUN_OPTIONS}}
@@ -48,6 +58,24 @@ class Step:
     step_ms: float
 
 
+METHODS = ("gslam", "fastslam1", "fastslam2")
+
+
+def make_filter(cfg: RunConfig, initial_pose: np.ndarray) -> SlamFilter:
+    """The SLAM method `cfg.method`, sharing the particle count, seed and range limit of cfg.filter."""
+    if cfg.method == "gslam":
+        return GSlamFilter(cfg.filter, initial_pose)
+    if cfg.method in ("fastslam1", "fastslam2"):
+        fs = FastSlamConfig(
+            particles=cfg.filter.particles,
+            seed=cfg.filter.seed,
+            version=int(cfg.method[-1]),
+            resample_threshold=cfg.filter.resample_threshold,
+        )
+        return FastSlamFilter(fs, initial_pose, cfg.filter.min_range_m)
+    raise ValueError(f"unknown method {cfg.method!r}; choose one of {', '.join(METHODS)}")
+
+
 class SlamRunner:
     """Streams an `InputLog` through a `GSlamFilter`, one scan at a time."""
 
@@ -58,7 +86,7 @@ class SlamRunner:
         if log.motion_model == "ackermann":
             self.vehicle = vehicle_preset(cfg.vehicle or log.meta["vehicle"].get("preset", "carpark"))
         self.initial_pose, self.t_init_s = self._initial_pose()
-        self.filter = GSlamFilter(cfg.filter, np.zeros(3) if self.initial_pose is None else self.initial_pose)
+        self.filter = make_filter(cfg, np.zeros(3) if self.initial_pose is None else self.initial_pose)
         self.gps: list[tuple[float, float, float]] = []
 
     def _initial_pose(self) -> tuple[np.ndarray | None, float | None]:
@@ -138,7 +166,7 @@ class SlamRunner:
                     odom_prev = odom_last
                 scan = Scan(ev.stamp_s, ev.ranges_m, geom)
                 t0 = time.perf_counter()
-                result = self.filter.step(scan, predict)
+                result = self.filter.step(scan, predict, ev.intensities)
                 step_ms = (time.perf_counter() - t0) * 1e3
                 yield Step(ev, result, step_ms)
                 if self.cfg.max_scans is not None and ev.index + 1 >= self.cfg.max_scans:
