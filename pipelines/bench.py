@@ -32,7 +32,7 @@ PAPER_TABLE3: dict[tuple[int, int], tuple[float, float]] = {
 }
 FULL_GRID = [(n, m) for n in (2, 8, 30) for m in (4, 10, 20)]
 QUICK_GRID = [(2, 4), (8, 10)]
-METHODS = ("gslam", "fastslam1", "fastslam2")
+METHODS = ("gslam", "fastslam1", "fastslam2", "grid", "grid-hr")
 # Table 4 of the paper: (method, N) -> (ms per step, position error m).
 PAPER_TABLE4: dict[tuple[str, int], tuple[float, float]] = {
     ("gslam", 2): (22, 1.55),

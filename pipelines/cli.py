@@ -239,7 +239,8 @@ def process(
     ] = None,
     max_scans: Annotated[int | None, typer.Option("--max-scans", help="Stop after this many scans.")] = None,
     method: Annotated[
-        str | None, typer.Option("--method", help="gslam (default), or a baseline: fastslam1, fastslam2.")
+        str | None,
+        typer.Option("--method", help="gslam (default), or a baseline: fastslam1, fastslam2, grid, grid-hr."),
     ] = None,
 ) -> None:
     """Run G-SLAM (or a baseline) over an input MCAP; write the result MCAP and a Rerun recording."""
@@ -355,7 +356,10 @@ def bench(
     ctx: typer.Context,
     quick: Annotated[bool, typer.Option("--quick", help="A small subset (N 2 M 4, N 8 M 10; one seed).")] = False,
     methods: Annotated[
-        str, typer.Option("--methods", help="Comma-separated: gslam, fastslam1, fastslam2, or all (adds Table 4).")
+        str,
+        typer.Option(
+            "--methods", help="Comma-separated: gslam, fastslam1, fastslam2, grid, grid-hr, or all (adds Table 4)."
+        ),
     ] = "gslam",
     seeds: Annotated[int | None, typer.Option("--seeds", help="Seeds per cell (default 3; 1 with --quick).")] = None,
     data: Annotated[Path, typer.Option("--data", help="Car Park log directory (or an ingested MCAP).")] = Path(

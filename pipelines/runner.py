@@ -11,6 +11,7 @@ import numpy as np
 from gslam.config import FilterConfig
 from gslam.fastslam import FastSlamConfig, FastSlamFilter
 from gslam.filter import GSlamFilter, SlamFilter, StepResult
+from gslam.grid import GridConfig, GridSlam
 from gslam.initialisation import fit_initial_heading
 from gslam.motion import apply_odometry, integrate_ackermann, odometry_delta
 from gslam.scan import Scan, ScanGeometry
@@ -26,7 +27,8 @@ class RunConfig:
 
     filter: FilterConfig = field(default_factory=FilterConfig)
     method: str = "gslam"
-    """gslam, or a baseline: fastslam1, fastslam2 (landmarks: poles, from intensity or geometry)."""
+    """gslam, or a baseline: fastslam1, fastslam2 (landmarks: poles, from intensity or geometry), grid
+    (about 3000 cells) or grid-hr (about 48000 cells) occupancy RBPF."""
     vehicle: str | None = None
     """Vehicle preset for Ackermann logs (default: the one named in the input's metadata)."""
     init_heading_window_s: float = 5.0
@@ -58,7 +60,7 @@ class Step:
     step_ms: float
 
 
-METHODS = ("gslam", "fastslam1", "fastslam2")
+METHODS = ("gslam", "fastslam1", "fastslam2", "grid", "grid-hr")
 
 
 def make_filter(cfg: RunConfig, initial_pose: np.ndarray) -> SlamFilter:
@@ -73,6 +75,18 @@ def make_filter(cfg: RunConfig, initial_pose: np.ndarray) -> SlamFilter:
             resample_threshold=cfg.filter.resample_threshold,
         )
         return FastSlamFilter(fs, initial_pose, cfg.filter.min_range_m)
+    if cfg.method in ("grid", "grid-hr"):
+        cells = 3000 if cfg.method == "grid" else 48000
+        return GridSlam(
+            GridConfig(
+                particles=cfg.filter.particles,
+                seed=cfg.filter.seed,
+                cells=cells,
+                min_range_m=cfg.filter.min_range_m,
+                resample_threshold=cfg.filter.resample_threshold,
+            ),
+            initial_pose,
+        )
     raise ValueError(f"unknown method {cfg.method!r}; choose one of {', '.join(METHODS)}")
 
 

@@ -169,7 +169,7 @@ def test_bench_quick_end_to_end(tmp_path):
     assert "| 2 | 4 |" in text and "| 8 | 10 |" in text
     assert "Machine:" in text and "Command: `gslam bench --quick" in text
     assert "0.41" in text  # the paper's figure beside ours
-    res = CliRunner().invoke(app, ["bench", "--quick", "--methods", "grid"])
+    res = CliRunner().invoke(app, ["bench", "--quick", "--methods", "gmapping"])
     assert res.exit_code != 0 and "not available" in res.output
 
 
@@ -188,5 +188,18 @@ def test_fastslam_end_to_end(carpark_mcap, tmp_path, method):
 
 
 def test_unknown_method(carpark_mcap, tmp_path):
-    res = CliRunner().invoke(app, ["process", str(carpark_mcap), str(tmp_path / "x.mcap"), "--method", "grid"])
+    res = CliRunner().invoke(app, ["process", str(carpark_mcap), str(tmp_path / "x.mcap"), "--method", "gmapping"])
     assert res.exit_code != 0 and "unknown method" in res.output
+
+
+@pytest.mark.parametrize("method", ["grid", "grid-hr"])
+def test_grid_end_to_end(carpark_mcap, tmp_path, method):
+    out = tmp_path / f"{method}.mcap"
+    res = CliRunner().invoke(
+        app, ["process", str(carpark_mcap), str(out), "--method", method, "--seed", "1", "--no-rrd"]
+    )
+    assert res.exit_code == 0, res.output
+    m = evaluate_result(out)
+    # Measured (seeds 0, 1): grid 0.98 / 0.65 m, grid-hr 0.62 / 0.32 m; dead reckoning 1.67 m.
+    assert m["gps_mean_error_m"] < DEAD_RECKONING_ERROR_M
+    assert m["final_map_points"] > 20
