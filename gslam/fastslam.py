@@ -223,6 +223,11 @@ class FastSlamFilter:
     def best_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         return self.slam.best_trajectory()
 
+    def landmarks(self, particle: int) -> tuple[np.ndarray, np.ndarray]:
+        """Landmark means (K, 2) and EKF covariances (K, 2, 2) of a particle."""
+        lm = self.slam.maps[particle]
+        return lm.mean, lm.cov
+
     def map_points(self, particle: int) -> tuple[np.ndarray, np.ndarray]:
         """Landmark means and, as "probability", a certainty 1 / (1 + trace(P) / trace(R_xy)) in (0, 1]."""
         lm = self.slam.maps[particle]

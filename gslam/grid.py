@@ -74,6 +74,11 @@ class GridSlam:
         inside = (ij >= 0).all(axis=1) & (ij < self.cfg.side).all(axis=1)
         return ij[:, 0], ij[:, 1], inside
 
+    def occupancy(self, particle: int) -> tuple[np.ndarray, np.ndarray, float]:
+        """(occupancy probability grid (side, side) indexed [i along x, j along y], origin xy, cell size)."""
+        g = self.grids[particle].astype(float)
+        return 1.0 / (1.0 + np.exp(-g)), self.origin, self.cfg.cell_m
+
     def map_points(self, particle: int) -> tuple[np.ndarray, np.ndarray]:
         """Occupied cells (log-odds > 0) as cell centres with their occupancy probability."""
         g = self.grids[particle]

@@ -33,6 +33,8 @@ SLAM_TRAJECTORY = "/slam/trajectory"
 SLAM_MAP = "/slam/map"
 SLAM_MAP_FINAL = "/slam/map_final"
 SLAM_STATS = "/slam/stats"
+SLAM_LANDMARKS = "/slam/landmarks"  # FastSLAM: landmark means and covariances (final, best particle)
+SLAM_GRID = "/slam/grid"  # grid methods: occupancy grid (final, best particle)
 
 MAP_FRAME = "map"
 
@@ -89,6 +91,17 @@ RELATIONS_SCHEMA: dict[str, Any] = {
         "dyaw_rad": {"type": "array", "items": {"type": "number"}},
     },
     "required": ["t1_s", "t2_s", "dx_m", "dy_m", "dyaw_rad"],
+}
+
+SLAM_LANDMARKS_SCHEMA: dict[str, Any] = {
+    "title": "gslam.LandmarkMap",
+    "description": "Landmark EKFs of the best particle: means [m] and 2x2 covariances [m^2], row-major.",
+    "type": "object",
+    "properties": {
+        "x_m": {"type": "array", "items": {"type": "number"}},
+        "y_m": {"type": "array", "items": {"type": "number"}},
+        "cov": {"type": "array", "items": {"type": "array", "items": {"type": "number"}}},
+    },
 }
 
 STATS_SCHEMA: dict[str, Any] = {
@@ -185,6 +198,21 @@ def point_cloud(t_s: float, xy: np.ndarray, probability: np.ndarray, frame_id: s
     buf[:, :2] = xy
     buf[:, 3] = probability
     msg.data = buf.tobytes()
+    return msg
+
+
+def occupancy_grid(t_s: float, prob: np.ndarray, origin: np.ndarray, cell_m: float, frame_id: str = MAP_FRAME):
+    """A foxglove.Grid of occupancy probability (float32 field "occupancy"); prob is indexed [ix, iy]."""
+    from foxglove_schemas_protobuf.Grid_pb2 import Grid
+
+    rows = np.ascontiguousarray(prob.T.astype(np.float32))  # Grid rows run along y, columns along x
+    msg = Grid(frame_id=frame_id, column_count=rows.shape[1], row_stride=rows.shape[1] * 4, cell_stride=4)
+    msg.timestamp.CopyFrom(timestamp(t_s))
+    _set_pose(msg.pose, origin[0], origin[1], 0.0)
+    msg.cell_size.x = cell_m
+    msg.cell_size.y = cell_m
+    msg.fields.add(name="occupancy", offset=0, type=PackedElementField.FLOAT32)
+    msg.data = rows.tobytes()
     return msg
 
 

@@ -242,6 +242,9 @@ def process(
         str | None,
         typer.Option("--method", help="gslam (default), or a baseline: fastslam1, fastslam2, grid, grid-hr."),
     ] = None,
+    grid_cells: Annotated[
+        int | None, typer.Option("--grid-cells", help="Cells of the grid baselines (default 3000 / 48000).")
+    ] = None,
 ) -> None:
     """Run G-SLAM (or a baseline) over an input MCAP; write the result MCAP and a Rerun recording."""
     from gslam.config import FilterConfig
@@ -271,6 +274,8 @@ def process(
         run_opts["max_scans"] = max_scans
     if method is not None:
         run_opts["method"] = method
+    if grid_cells is not None:
+        run_opts["grid_cells"] = grid_cells
     cfg = RunConfig(filter=FilterConfig.from_dict(filter_opts), **run_opts)
     from pipelines.runner import METHODS
 

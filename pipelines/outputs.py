@@ -28,6 +28,17 @@ def probability_colors(p: np.ndarray) -> np.ndarray:
     return (np.column_stack([r, g, b, np.ones_like(v)]) * 255).astype(np.uint8)
 
 
+def covariance_ellipses(mean: np.ndarray, cov: np.ndarray, sigmas: float = 3.0, n: int = 24) -> list[np.ndarray]:
+    """Outlines (n points each) of the `sigmas`-sigma ellipses of 2-D Gaussians (K,2), (K,2,2)."""
+    t = np.linspace(0, 2 * np.pi, n)
+    circle = np.stack([np.cos(t), np.sin(t)])
+    out = []
+    for m, c in zip(mean, cov, strict=True):  # per landmark, a few dozen at most
+        vals, vecs = np.linalg.eigh(0.5 * (c + c.T))
+        out.append(m + (vecs @ (np.sqrt(np.maximum(vals, 0))[:, None] * sigmas * circle)).T)
+    return out
+
+
 class McapResultWriter:
     """Writes /slam/* channels (docs/CHANNELS.md) and the run's metadata."""
 
@@ -79,6 +90,22 @@ class McapResultWriter:
         xy, p = flt.map_points(best)
         self.writer.write_proto(ch.SLAM_MAP_FINAL, ch.point_cloud(t_last, xy, p), ns)
         self.writer.write_proto(ch.SLAM_TRAJECTORY, ch.poses_in_frame(t_last, traj, ch.MAP_FRAME), ns)
+        if hasattr(flt, "landmarks"):
+            mean, cov = flt.landmarks(best)
+            self.writer.write_json(
+                ch.SLAM_LANDMARKS,
+                "gslam.LandmarkMap",
+                ch.SLAM_LANDMARKS_SCHEMA,
+                {
+                    "x_m": mean[:, 0].tolist(),
+                    "y_m": mean[:, 1].tolist(),
+                    "cov": cov.reshape(-1, 4).tolist(),
+                },
+                ns,
+            )
+        if hasattr(flt, "occupancy"):
+            prob, origin, cell = flt.occupancy(best)
+            self.writer.write_proto(ch.SLAM_GRID, ch.occupancy_grid(t_last, prob, origin, cell), ns)
         self.writer.add_metadata("result", result_meta)
         return self.writer.finish()
 
@@ -182,6 +209,15 @@ class RerunResultWriter:
             rec.set_time("scan", sequence=self.stats["scan"][-1])
             rec.set_time("time", duration=self.stats["time"][-1])
             self._log_map(*flt.map_points(flt.best_particle()))
+            best = flt.best_particle()
+            if hasattr(flt, "landmarks"):
+                rec.log(
+                    "world/landmark_ellipses",
+                    rr.LineStrips2D(covariance_ellipses(*flt.landmarks(best)), colors=[[0, 200, 255]], radii=0.03),
+                )
+            if hasattr(flt, "occupancy"):
+                prob, _, _ = flt.occupancy(best)
+                rec.log("grid/occupancy", rr.Image((255 * (1 - prob.T[::-1])).astype(np.uint8)))
             _, traj = flt.best_trajectory()
             rec.log("world/trajectory", rr.LineStrips2D([traj[:, :2]], colors=[[230, 30, 30]], radii=0.1))
             rec.log("world/online", rr.LineStrips2D([np.asarray(self.online)], colors=[[60, 120, 255]], radii=0.05))

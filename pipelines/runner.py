@@ -37,6 +37,8 @@ class RunConfig:
     """Write the best particle's map every this many scans (0: final map only)."""
     max_scans: int | None = None
     """Stop after this many scans (None: the whole log)."""
+    grid_cells: int | None = None
+    """Cells of the grid baselines (default: 3000 for grid, 48000 for grid-hr, as in the paper)."""
     laser_yaw_offset_rad: float = 0.0
     """Mounting yaw of the laser relative to the vehicle axis, added to every bearing (calibration)."""
 
@@ -76,7 +78,7 @@ def make_filter(cfg: RunConfig, initial_pose: np.ndarray) -> SlamFilter:
         )
         return FastSlamFilter(fs, initial_pose, cfg.filter.min_range_m)
     if cfg.method in ("grid", "grid-hr"):
-        cells = 3000 if cfg.method == "grid" else 48000
+        cells = cfg.grid_cells or (3000 if cfg.method == "grid" else 48000)
         return GridSlam(
             GridConfig(
                 particles=cfg.filter.particles,

@@ -235,3 +235,12 @@ def test_pole_map_error_on_constructed_maps():
     # Shift the pole points by 0.5 m: the error is 0.5 m.
     err, within = pole_map_error(np.vstack([poles + [0.3, 0.4], clutter]), p, poles)
     assert err == pytest.approx(0.5) and within == 3
+
+
+def test_covariance_ellipses():
+    from pipelines.outputs import covariance_ellipses
+
+    (e,) = covariance_ellipses(np.array([[1.0, 2.0]]), np.array([[[0.04, 0.0], [0.0, 0.01]]]), sigmas=3.0)
+    d = e - [1.0, 2.0]
+    assert np.abs(d[:, 0]).max() == pytest.approx(0.6, rel=1e-3)  # 3 x 0.2
+    assert np.abs(d[:, 1]).max() == pytest.approx(0.3, rel=1e-2)  # 3 x 0.1

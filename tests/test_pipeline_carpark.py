@@ -185,6 +185,10 @@ def test_fastslam_end_to_end(carpark_mcap, tmp_path, method):
     assert m["gps_mean_error_m"] < 0.5
     assert m["poles_within_1m"] >= 13
     assert out.with_suffix(".rrd").exists()
+    from pipelines.mcapio import McapInput
+
+    lm = next(McapInput(out).messages([ch.SLAM_LANDMARKS])).value
+    assert len(lm["x_m"]) == m["final_map_points"] and all(c[0] > 0 and c[3] > 0 for c in lm["cov"])
 
 
 def test_unknown_method(carpark_mcap, tmp_path):
@@ -203,3 +207,10 @@ def test_grid_end_to_end(carpark_mcap, tmp_path, method):
     # Measured (seeds 0, 1): grid 0.98 / 0.65 m, grid-hr 0.62 / 0.32 m; dead reckoning 1.67 m.
     assert m["gps_mean_error_m"] < DEAD_RECKONING_ERROR_M
     assert m["final_map_points"] > 20
+    from pipelines.mcapio import McapInput
+
+    grid = next(McapInput(out).messages([ch.SLAM_GRID])).value
+    cells = 3000 if method == "grid" else 48000
+    assert abs(grid.column_count**2 - cells) / cells < 0.05
+    occ = np.frombuffer(grid.data, dtype=np.float32)
+    assert len(occ) == grid.column_count**2 and ((occ >= 0) & (occ <= 1)).all() and (occ > 0.5).sum() > 20
