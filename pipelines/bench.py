@@ -44,6 +44,12 @@ PAPER_TABLE4: dict[tuple[str, int], tuple[float, float]] = {
     ("gslam", 30): (294, 0.40),
     ("fastslam1", 30): (148, 0.43),
     ("fastslam2", 30): (281, 0.40),
+    ("grid", 2): (14, 1.04),
+    ("grid-hr", 2): (180, 1.10),
+    ("grid", 8): (46, 0.57),
+    ("grid-hr", 8): (648, 0.41),
+    ("grid", 30): (221, 0.40),
+    ("grid-hr", 30): (1943, 0.41),
 }
 
 
