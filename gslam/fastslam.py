@@ -15,7 +15,7 @@ import numpy as np
 from .filter import StepResult
 from .landmarks import PoleExtractorConfig, poles_from_geometry, poles_from_intensity
 from .motion import wrap_angle
-from .resampling import effective_sample_size, normalise_log_weights, residual_systematic_resampling
+from .resampling import reweight_and_resample
 from .scan import Scan
 from .trajectory import AncestryTree
 
@@ -136,13 +136,10 @@ class FastSlam:
                 self.maps[i] = LandmarkMap(mean, cov)
         if cfg.version == 2 and motion_cov is not None:
             log_w += proposal_log_w
-        with np.errstate(divide="ignore"):
-            self.weights = normalise_log_weights(np.log(self.weights) + log_w)
-        ess = effective_sample_size(self.weights)
+        self.weights, ess, parents = reweight_and_resample(self.weights, log_w, cfg.resample_threshold, self.rng)
         self.tree.record(t_s, self.poses)
-        self.resampled = bool(ess < cfg.resample_threshold * cfg.particles)
+        self.resampled = parents is not None
         if self.resampled:
-            parents = residual_systematic_resampling(self.weights, self.rng)
             self.poses = self.poses[parents]
             self.maps = [self.maps[a] for a in parents]
             self.tree.continue_from(parents)

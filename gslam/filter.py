@@ -21,7 +21,7 @@ from .pointmap import (
     update_probabilities,
 )
 from .proposal import match_scan
-from .resampling import effective_sample_size, normalise_log_weights, residual_systematic_resampling
+from .resampling import effective_sample_size, reweight_and_resample
 from .scan import Scan
 from .trajectory import AncestryTree
 from .weights import log_weight_beam_sum, log_weight_likelihood_field, log_weight_sum
@@ -160,9 +160,7 @@ class GSlamFilter:
         pruned = prune_and_thin(FlatMaps(all_xy, p_new, all_owner), n, cfg)
         self.maps = pruned.split(n)
         # 6. Weights, effective sample size, resampling (RSR).
-        with np.errstate(divide="ignore"):
-            self.weights = normalise_log_weights(np.log(self.weights) + log_like)
-        ess = effective_sample_size(self.weights)
+        self.weights, ess, parents = reweight_and_resample(self.weights, log_like, cfg.resample_threshold, self.rng)
         best = self.best_particle()
         result = StepResult(
             scan.t_s,
@@ -178,8 +176,7 @@ class GSlamFilter:
             matched,
         )
         self.tree.record(scan.t_s, self.poses)
-        if ess < cfg.resample_threshold * n:
-            parents = residual_systematic_resampling(self.weights, self.rng)
+        if parents is not None:
             self.poses = self.poses[parents]
             self.maps = [self.maps[a] for a in parents]  # shared by reference: copy-on-write
             self.tree.continue_from(parents)

@@ -15,7 +15,7 @@ import numpy as np
 from scipy.ndimage import distance_transform_edt
 
 from .filter import Predictor, StepResult
-from .resampling import effective_sample_size, normalise_log_weights, residual_systematic_resampling
+from .resampling import reweight_and_resample
 from .scan import Scan, transform_points
 from .trajectory import AncestryTree
 
@@ -148,9 +148,7 @@ class GridSlam:
                 log_like[i] = self._log_likelihood(i, pts, fields[id(g)])
         for i in range(cfg.particles):  # per particle: vectorised over beams and ray samples
             self._integrate(i, scan)
-        with np.errstate(divide="ignore"):
-            self.weights = normalise_log_weights(np.log(self.weights) + log_like)
-        ess = effective_sample_size(self.weights)
+        self.weights, ess, parents = reweight_and_resample(self.weights, log_like, cfg.resample_threshold, self.rng)
         best = self.best_particle()
         result = StepResult(
             scan.t_s,
@@ -166,8 +164,7 @@ class GridSlam:
             0,
         )
         self.tree.record(scan.t_s, self.poses)
-        if ess < cfg.resample_threshold * cfg.particles:
-            parents = residual_systematic_resampling(self.weights, self.rng)
+        if parents is not None:
             self.poses = self.poses[parents]
             self.grids = [self.grids[a] for a in parents]
             self.tree.continue_from(parents)

@@ -41,3 +41,19 @@ def residual_systematic_resampling(weights: np.ndarray, rng: np.random.Generator
     if diff:
         counts[int(np.argmax(w))] += diff
     return np.repeat(np.arange(n), counts)
+
+
+def reweight_and_resample(
+    weights: np.ndarray, log_likelihood: np.ndarray, threshold: float, rng: np.random.Generator
+) -> tuple[np.ndarray, float, np.ndarray | None]:
+    """Multiply the importance weights by the step's likelihoods (in logs) and normalise, then draw RSR
+    parents when the effective sample size falls below `threshold` x N.
+
+    Returns (normalised weights, effective sample size, parent indices or None when not resampling).
+    The caller reorders its particles by the parents and resets the weights to 1/N.
+    """
+    with np.errstate(divide="ignore"):
+        w = normalise_log_weights(np.log(weights) + log_likelihood)
+    ess = effective_sample_size(w)
+    parents = residual_systematic_resampling(w, rng) if ess < threshold * len(w) else None
+    return w, ess, parents
