@@ -69,8 +69,6 @@ def run_demo(
 ) -> DemoReport:
     from ingest import ingest
 
-    from .source import InputLog
-
     out = Path(out)
     vehicle = vehicle_preset("carpark")
     t0 = time.perf_counter()
@@ -105,11 +103,11 @@ def run_demo(
     res = read_result(result)
     truth = sim.truth
     err = float(np.mean(np.hypot(*(res.trajectory[:, :2] - truth[: len(res.trajectory), 1:3]).T)))
-    # Dead reckoning from the same start over the same odometry, for comparison.
+    # Dead reckoning from the filter's own start (recorded in the result) over the same odometry.
     from gslam.initialisation import dead_reckoning
 
-    start = InputLog(input_mcap)
-    dr = dead_reckoning(sim.drs, np.asarray(_initial_pose(start, cfg)), float(sim.gps[0, 0]), truth[:, 0], vehicle)
+    start = np.asarray(res.metadata["initialisation"]["pose"], dtype=float)
+    dr = dead_reckoning(sim.drs, start, float(sim.gps[0, 0]), truth[:, 0], vehicle)
     dr_err = float(np.mean(np.hypot(*(dr[:, :2] - truth[:, 1:3]).T)))
     d = distance_to_obstacles(sim.world, res.map_xy)
     within = float(np.mean(d < 0.5)) if len(d) else float("nan")
@@ -123,9 +121,3 @@ def run_demo(
     figure = plot_result(result, out / "demo.png", input_mcap)
     say(f"done in {time.perf_counter() - t0:.0f} s. Open the recording with:  rerun {rrd}")
     return DemoReport(log_dir, input_mcap, result, rrd, figure, metrics, err, dr_err, within, free)
-
-
-def _initial_pose(log, cfg: RunConfig) -> np.ndarray:
-    from .runner import SlamRunner
-
-    return SlamRunner(log, cfg).initial_pose

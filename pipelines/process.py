@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +31,6 @@ class ProcessSummary:
     interrupted: bool
     output: Path
     rrd: Path | None
-    step_ms: list[float] = field(default_factory=list, repr=False)
 
     @property
     def real_time_factor(self) -> float:
@@ -125,7 +124,6 @@ def process(
         interrupted=interrupted,
         output=Path(output_path),
         rrd=Path(rrd_path) if rrd_path else None,
-        step_ms=filter_ms,
     )
     result_meta = {
         "steps": summary.steps,
