@@ -39,16 +39,23 @@ class FilterConfig:
     beams 0-7 see the vehicle's own body at 0.84-0.92 m in every scan."""
 
     # Sensor noise (R) and the point likelihood q (eq. 6; open point 2).
-    range_sigma_m: float = 0.10
-    """Range noise of the laser (sd of the draw of new points, R)."""
+    range_sigma_m: float = 0.02
+    """Range noise of the laser (sd of the draw of new points, R). 0.10 m smears every surface along the
+    beams and the scan matcher then drifts (docs/CHOICES.md)."""
     bearing_sigma_rad: float = math.radians(0.25)
     """Bearing noise of the laser (sd of the draw of new points, R)."""
     hit_sigma_m: float = 0.20
     """Width of the range term of q for existing points (pose uncertainty included)."""
     hit_ratio: float = 3.0
     """q of a point at a return, relative to an unobserved point (q = 1)."""
-    free_ratio: float = 0.3
-    """q of a point in observed free space (in front of the return), relative to an unobserved point."""
+    free_ratio: float = 0.9
+    """q of a point in observed free space (in front of the return), relative to an unobserved point.
+    Points seen as free about 8 times in a row fall below the pruning threshold; a stronger ratio (0.3)
+    also erases surfaces seen at grazing angles or with a small pose error, and the matcher suffers."""
+    free_space_beams: int = 0
+    """A point is in observed free space only when it lies in front of the returns of its beam and of
+    this many beams either side (0: its own beam only). Guards surfaces seen at grazing angles, where
+    the nearest beam's return lies further along the surface, from being erased."""
 
     # Open point 3: the semantic of p and the pruning threshold.
     map_update: MapUpdate = "binary"
@@ -87,13 +94,29 @@ class FilterConfig:
     """Prior where no point lies within the radius: a probability for "binary", else x mean p."""
 
     # Open point 6: proposal.
-    proposal: Proposal = "motion"
-    """"motion": sample the motion model (the paper); "scan_match": match the scan against the
-    particle's own point map, then sample around the match."""
-    match_iterations: int = 6
-    match_max_distance_m: float = 1.0
-    proposal_sigma_xy_m: float = 0.03
-    proposal_sigma_phi_rad: float = math.radians(0.3)
+    proposal: Proposal = "scan_match"
+    """"motion": sample the motion model (the paper); "scan_match": sample the motion model, then refine
+    each particle's pose by hill climbing a likelihood field of the scan over the particle's own point
+    map (GMapping's scan matcher, on points instead of a grid), then sample around the match."""
+    match_sigma_m: float = 0.10
+    """Distance scale of the matcher's likelihood field."""
+    match_neighbours: int = 16
+    """1: the field is the distance to the nearest map point; more: to the mean of that many nearest
+    points within match_radius_m (the centre of the scatter of generated points around a surface)."""
+    match_radius_m: float = 0.4
+    match_step_xy_m: float = 0.10
+    """First hill-climbing step in x and y (halved at each level)."""
+    match_step_phi_rad: float = math.radians(1.0)
+    """First hill-climbing step in heading (halved at each level)."""
+    match_levels: int = 4
+    """Step halvings before the climb stops."""
+    match_max_iterations: int = 60
+    """Cap on hill-climbing iterations (each tries 6 moves for every particle still climbing)."""
+    match_min_score: float = 0.2
+    """A match counts when its score is at least this fraction of the returns used; otherwise the
+    particle keeps its motion-model sample."""
+    proposal_sigma_xy_m: float = 0.01
+    proposal_sigma_phi_rad: float = math.radians(0.1)
 
     # Open point 7: when to update.
     update_schedule: UpdateSchedule = "travel"
@@ -138,7 +161,16 @@ class FilterConfig:
                 raise ValueError(f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}")
         if not 0 < self.resample_threshold <= 1:
             raise ValueError("resample_threshold must be in (0, 1]")
-        for name in ("range_sigma_m", "hit_sigma_m", "weight_sigma_m", "cell_size_m", "prior_radius_m"):
+        for name in (
+            "range_sigma_m",
+            "hit_sigma_m",
+            "weight_sigma_m",
+            "cell_size_m",
+            "prior_radius_m",
+            "match_sigma_m",
+            "match_step_xy_m",
+            "match_step_phi_rad",
+        ):
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name} must be positive")
 

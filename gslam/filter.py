@@ -20,7 +20,7 @@ from .pointmap import (
     prune_and_thin,
     update_probabilities,
 )
-from .proposal import match_scan
+from .proposal import match_scans
 from .resampling import effective_sample_size, reweight_and_resample
 from .scan import Scan
 from .trajectory import AncestryTree
@@ -137,8 +137,8 @@ class GSlamFilter:
         new_owner, new_xy, new_q, _ = draw_new_points(self.poses, scan, cfg, self.rng)
         new_prior = interpolate_prior(self.maps, new_owner, new_xy, cfg) if len(new_owner) else np.empty(0)
         # 3. q of existing points (eq. 6) and the update of eq. 7 over existing and new points.
-        r, j, z, observed = project(flat, self.poses, scan)
-        q = point_likelihood_ratio(r, z, observed, cfg)
+        r, j, z, observed, free = project(flat, self.poses, scan, cfg.free_space_beams)
+        q = point_likelihood_ratio(r, z, observed, cfg, free)
         all_q = np.concatenate([q, new_q])
         all_prev = np.concatenate([flat.p, new_prior])
         all_owner = np.concatenate([flat.owner, new_owner])
@@ -187,20 +187,19 @@ class GSlamFilter:
         return result
 
     def _scan_match_proposal(self, scan: Scan) -> int:
-        cfg = self.cfg
+        """Open point 6: refine every particle's motion-model sample by matching the scan against its own
+        map (`proposal.match_scans`), then sample around the match."""
+        cfg, n = self.cfg, self.cfg.particles
         _, z, b = scan.return_polar()
         sel = slice(None, None, cfg.weight_beam_stride)
         pts = np.column_stack([z[sel] * np.cos(b[sel]), z[sel] * np.sin(b[sel])])
-        matched = 0
-        for i, m in enumerate(self.maps):  # per particle: ICP over its returns, vectorised inside
-            pose, ok = match_scan(m, self.poses[i], pts, cfg)
-            if ok:
-                matched += 1
-                noise = self.rng.standard_normal(3) * [
-                    cfg.proposal_sigma_xy_m,
-                    cfg.proposal_sigma_xy_m,
-                    cfg.proposal_sigma_phi_rad,
-                ]
-                self.poses[i] = pose + noise
-                self.poses[i, 2] = wrap_angle(self.poses[i, 2])
-        return matched
+        poses, matched, _ = match_scans(self.maps, self.poses, pts, cfg)
+        noise = self.rng.standard_normal((n, 3)) * [
+            cfg.proposal_sigma_xy_m,
+            cfg.proposal_sigma_xy_m,
+            cfg.proposal_sigma_phi_rad,
+        ]
+        poses[matched] += noise[matched]
+        poses[:, 2] = wrap_angle(poses[:, 2])
+        self.poses = poses
+        return int(matched.sum())

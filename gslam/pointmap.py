@@ -88,35 +88,54 @@ class FlatMaps:
 
 
 def point_likelihood_ratio(
-    range_m: np.ndarray, measured_m: np.ndarray, observed: np.ndarray, cfg: FilterConfig
+    range_m: np.ndarray,
+    measured_m: np.ndarray,
+    observed: np.ndarray,
+    cfg: FilterConfig,
+    free_up_to_m: np.ndarray | None = None,
 ) -> np.ndarray:
     """q_k (eq. 6) relative to an unobserved point, for points at `range_m` on beams that measured `measured_m`.
 
     Near the return: up to hit_ratio (Gaussian in range, width hit_sigma_m). In front of it (observed free
     space): free_ratio. Behind it (occluded), outside the field of view or beyond the maximum range: 1.
+    `free_up_to_m` (default: `measured_m`) limits the free space: a point in front of its own beam's
+    return but not in front of `free_up_to_m` (the neighbouring beams' returns) is left as if occluded.
     """
     d = range_m - measured_m
     g = np.exp(-0.5 * np.square(d / cfg.hit_sigma_m))
     q = cfg.free_ratio + (cfg.hit_ratio - cfg.free_ratio) * g
-    behind = d > 0
-    q = np.where(behind, 1.0 + (cfg.hit_ratio - 1.0) * g, q)
+    occluded = d > 0
+    if free_up_to_m is not None:
+        occluded |= range_m >= free_up_to_m
+    q = np.where(occluded, 1.0 + (cfg.hit_ratio - 1.0) * g, q)
     return np.where(observed, q, 1.0)
 
 
-def project(flat: FlatMaps, poses: np.ndarray, scan: Scan) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Project every point into its owner's scan: (range, beam index, measured range on it, observed mask).
+def project(
+    flat: FlatMaps, poses: np.ndarray, scan: Scan, free_space_beams: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Project every point into its owner's scan: (range, beam index, measured range on it, observed mask,
+    free-space limit).
 
     A point is observed when it falls inside the field of view and closer than the maximum range. Beams
-    without a return measured free space up to the maximum range.
+    without a return measured free space up to the maximum range. The free-space limit is the shortest
+    range measured by the point's beam and `free_space_beams` beams either side of it.
     """
     geom = scan.geometry
     r, b = measure(poses[flat.owner], flat.xy)
     j = np.rint((b - geom.start_angle_rad) / geom.angle_increment_rad).astype(np.int64)
     in_fov = (j >= 0) & (j < geom.beam_count)
     j = np.clip(j, 0, geom.beam_count - 1)
-    z = scan.occlusion_ranges_m[j]
+    ranges = scan.occlusion_ranges_m
+    z = ranges[j]
+    free = z
+    if free_space_beams > 0:
+        k = free_space_beams
+        padded = np.concatenate([np.full(k, np.inf), ranges, np.full(k, np.inf)])
+        window = np.lib.stride_tricks.sliding_window_view(padded, 2 * k + 1).min(axis=1)
+        free = window[j]
     observed = in_fov & (r < geom.max_range_m)
-    return r, j, z, observed
+    return r, j, z, observed, free
 
 
 def interpolate_prior(maps: list[PointMap], owner: np.ndarray, xy: np.ndarray, cfg: FilterConfig) -> np.ndarray:

@@ -1,57 +1,133 @@
-"""Improved proposal (open point 6): match the scan against the particle's own point map.
+"""Improved proposal (open point 6): match the scan against each particle's own point map.
 
-Point-to-point ICP with a closed-form weighted 2-D rigid fit per iteration; correspondences are the
-nearest map points (KD-tree) within a gate, weighted by their probability. A match that finds too
-few correspondences, or moves the pose implausibly far, falls back to the motion prediction.
+The score of a pose is a likelihood field over the particle's map points: each scan end point scores
+exp(-d^2 / 2 sigma^2), d its distance to the nearest map point (capped at 3 sigma). The pose is
+refined by hill climbing, as GMapping's scan matcher does on grids: from the motion-model sample, try
+one step forwards and backwards along x, y and phi, move while the score improves, halve the steps
+when it does not. All particles climb at once: their maps go into one KD-tree, each particle's points
+shifted by its own offset, so one query serves every candidate pose of every particle.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .config import FilterConfig
 from .motion import wrap_angle
 from .pointmap import PointMap
-from .scan import transform_points
+
+_OFFSET_M = 1.0e5  # particles' maps are laid side by side along x, this far apart
 
 
-def rigid_fit(src: np.ndarray, dst: np.ndarray, w: np.ndarray) -> tuple[float, np.ndarray]:
-    """Weighted least-squares rotation angle and translation taking src (K,2) onto dst (K,2)."""
-    ws = w.sum()
-    cs = (w[:, None] * src).sum(0) / ws
-    cd = (w[:, None] * dst).sum(0) / ws
-    a = src - cs
-    b = dst - cd
-    sxx = (w * (a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1])).sum()
-    sxy = (w * (a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])).sum()
-    ang = np.arctan2(sxy, sxx)
-    c, s = np.cos(ang), np.sin(ang)
-    t = cd - np.array([c * cs[0] - s * cs[1], s * cs[0] + c * cs[1]])
-    return float(ang), t
+@dataclass
+class StackedMaps:
+    """The distinct maps of the particles in one KD-tree; `slot[i]` is the map of particle i."""
+
+    tree: cKDTree | None
+    slot: np.ndarray
+    sizes: np.ndarray
+    xy: np.ndarray
+
+    @classmethod
+    def of(cls, maps: list[PointMap]) -> StackedMaps:
+        ids: dict[int, int] = {}
+        distinct: list[PointMap] = []
+        slot = np.empty(len(maps), dtype=np.int64)
+        for i, m in enumerate(maps):  # particles that share a map after resampling share its slot
+            k = ids.setdefault(id(m), len(distinct))
+            if k == len(distinct):
+                distinct.append(m)
+            slot[i] = k
+        sizes = np.array([len(m) for m in distinct])
+        if sizes.sum() == 0:
+            return cls(None, slot, sizes[slot], np.empty((0, 2)))
+        xy = np.concatenate([m.xy for m in distinct])
+        xy = xy + np.column_stack([np.repeat(np.arange(len(distinct)) * _OFFSET_M, sizes), np.zeros(len(xy))])
+        return cls(cKDTree(xy), slot, sizes[slot], xy)
+
+    def scores(
+        self,
+        particle: np.ndarray,
+        poses: np.ndarray,
+        pts_sensor: np.ndarray,
+        sigma_m: float,
+        neighbours: int = 1,
+        radius_m: float = 0.3,
+    ) -> np.ndarray:
+        """Likelihood-field score of the scan end points `pts_sensor` (K, 2) from `poses` (P, 3), each
+        against the map of `particle[p]`: sum over end points of exp(-d^2 / 2 sigma^2), d capped at
+        3 sigma. With neighbours 1, d is the distance to the nearest map point; with more, the distance
+        to the mean of the `neighbours` nearest map points within `radius_m` (the centre of the scatter
+        of generated points around a surface, rather than its nearest stray point)."""
+        c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+        wx = (
+            poses[:, 0, None] + c * pts_sensor[:, 0] - s * pts_sensor[:, 1] + (self.slot[particle] * _OFFSET_M)[:, None]
+        )
+        wy = poses[:, 1, None] + s * pts_sensor[:, 0] + c * pts_sensor[:, 1]
+        world = np.column_stack([wx.ravel(), wy.ravel()])
+        cap = 3 * sigma_m
+        if neighbours <= 1:
+            d, _ = self.tree.query(world, distance_upper_bound=cap)
+        else:
+            dk, ik = self.tree.query(world, k=neighbours, distance_upper_bound=radius_m)
+            found = np.isfinite(dk)
+            count = found.sum(axis=1)
+            ik = np.minimum(ik, len(self.xy) - 1)
+            mean = np.einsum("ij,ijk->ik", found.astype(float), self.xy[ik]) / np.maximum(count, 1)[:, None]
+            d = np.where(count > 0, np.hypot(world[:, 0] - mean[:, 0], world[:, 1] - mean[:, 1]), cap)
+        d = np.minimum(d, cap).reshape(len(poses), len(pts_sensor))
+        return np.exp(-0.5 * (d / sigma_m) ** 2).sum(axis=1)
 
 
-def match_scan(m: PointMap, pose: np.ndarray, pts_sensor: np.ndarray, cfg: FilterConfig) -> tuple[np.ndarray, bool]:
-    """Refine `pose` so that the scan end points `pts_sensor` (K,2) fall on the map. Returns (pose, ok)."""
-    if len(m) < 20 or len(pts_sensor) < 10:
-        return pose, False
-    p_rel = m.p if cfg.map_update == "binary" else np.minimum(m.p / m.mean_p, 1.0)
-    cur = np.array(pose, dtype=float)
-    gate = cfg.match_max_distance_m
-    for _ in range(cfg.match_iterations):
-        world = transform_points(cur, pts_sensor)
-        dist, idx = m.tree.query(world, k=1, distance_upper_bound=gate)
-        found = np.isfinite(dist)
-        if found.sum() < max(10, len(pts_sensor) // 5):
-            return pose, False
-        w = p_rel[idx[found]] / (1.0 + (dist[found] / (0.5 * gate)) ** 2)
-        ang, t = rigid_fit(world[found], m.xy[idx[found]], w)
-        c, s = np.cos(ang), np.sin(ang)
-        cur = np.array([c * cur[0] - s * cur[1] + t[0], s * cur[0] + c * cur[1] + t[1], wrap_angle(cur[2] + ang)])
-        gate = max(gate * 0.6, 3 * cfg.hit_sigma_m)
-        if abs(ang) < 1e-4 and np.hypot(*t) < 1e-3:
+_MOVES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=float)
+
+
+def match_scans(
+    maps: list[PointMap], poses: np.ndarray, pts_sensor: np.ndarray, cfg: FilterConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Hill-climb every particle's pose so that the scan end points `pts_sensor` (K, 2) fall on its map.
+
+    Returns (refined poses (N, 3), matched mask (N,), score at the returned pose (N,)). A particle whose
+    map is nearly empty, or whose best score is below `match_min_score` x K, keeps its pose (matched False).
+    """
+    n = len(poses)
+    out = np.array(poses, dtype=float, copy=True)
+    matched = np.zeros(n, dtype=bool)
+    if len(pts_sensor) < 10:
+        return out, matched, np.zeros(n)
+    stacked = StackedMaps.of(maps)
+    if stacked.tree is None:
+        return out, matched, np.zeros(n)
+    sigma = cfg.match_sigma_m
+    usable = stacked.sizes >= 20
+    idx = np.flatnonzero(usable)
+    score = np.zeros(n)
+    if len(idx) == 0:
+        return out, matched, score
+    score[idx] = stacked.scores(idx, out[idx], pts_sensor, sigma, cfg.match_neighbours, cfg.match_radius_m)
+    step = np.tile([cfg.match_step_xy_m, cfg.match_step_xy_m, cfg.match_step_phi_rad], (n, 1))
+    level = np.where(usable, 0, cfg.match_levels)
+    for _ in range(cfg.match_max_iterations):
+        active = np.flatnonzero(level < cfg.match_levels)
+        if len(active) == 0:
             break
-    moved = np.hypot(cur[0] - pose[0], cur[1] - pose[1])
-    turned = abs(wrap_angle(cur[2] - pose[2]))
-    if moved > 2 * cfg.match_max_distance_m or turned > np.radians(10):
-        return pose, False
-    return cur, True
+        cand = out[active, None, :] + _MOVES[None] * step[active, None, :]  # (A, 6, 3)
+        cand_scores = stacked.scores(
+            np.repeat(active, 6), cand.reshape(-1, 3), pts_sensor, sigma, cfg.match_neighbours, cfg.match_radius_m
+        ).reshape(-1, 6)
+        best = cand_scores.argmax(axis=1)
+        best_score = cand_scores[np.arange(len(active)), best]
+        better = best_score > score[active] * (1 + 1e-9)
+        up = active[better]
+        out[up] = cand[better, best[better]]
+        score[up] = best_score[better]
+        down = active[~better]
+        step[down] *= 0.5
+        level[down] += 1
+    out[:, 2] = wrap_angle(out[:, 2])
+    matched = usable & (score >= cfg.match_min_score * len(pts_sensor))
+    out[~matched] = poses[~matched]
+    return out, matched, score
