@@ -34,9 +34,10 @@ class FilterConfig:
     observation_unit: ObservationUnit = "beam"
     """"beam": M points around every return; "scan": M points per scan, each around a random return."""
 
-    min_range_m: float = 1.0
-    """Returns closer than this are ignored as observations (they still occlude): on the Car Park log
-    beams 0-7 see the vehicle's own body at 0.84-0.92 m in every scan."""
+    min_range_m: float | None = None
+    """Returns closer than this are ignored as observations (they still occlude). None: the input's own
+    self-return range (1.0 m on the Sydney logs, whose laser sees the car at 0.84-0.92 m on beams 0-7
+    in every Car Park scan; 0 elsewhere)."""
 
     # Sensor noise (R) and the point likelihood q (eq. 6; open point 2).
     range_sigma_m: float = 0.02

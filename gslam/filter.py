@@ -106,7 +106,7 @@ class GSlamFilter:
     def step(self, scan: Scan, predict: Predictor | None = None, intensities: np.ndarray | None = None) -> StepResult:
         """One G-SLAM step for scan z_t after the controls since the previous scan."""
         cfg, n = self.cfg, self.cfg.particles
-        if scan.min_range_m != cfg.min_range_m:
+        if cfg.min_range_m is not None and scan.min_range_m != cfg.min_range_m:
             scan = Scan(scan.t_s, scan.ranges_m, scan.geometry, cfg.min_range_m)
         # 1. Draw s_t^i from the motion model.
         if predict is not None:

@@ -21,6 +21,7 @@ class LogData:
     motion_model: str  # "ackermann" (speed + steering) or "odometry" (integrated odometry poses)
     vehicle_preset: str | None = None
     geometry: ScanGeometry | None = None
+    self_return_range_m: float = 0.0  # returns this close are the vehicle itself (Sydney car: 1.0 m)
     scan_t_s: np.ndarray | None = None
     scan_ranges_m: np.ndarray | None = None  # (K, B), +inf where there is no return
     scan_intensities: np.ndarray | None = None  # (K, B) or None

@@ -20,6 +20,8 @@ SYDNEY_GEOMETRY = ScanGeometry(
     beam_count=SYDNEY_BEAMS, start_angle_rad=-math.pi / 2, angle_increment_rad=math.pi / 360, max_range_m=80.0
 )
 NO_RETURN_M = 80.0
+SELF_RETURN_RANGE_M = 1.0
+"""The ACFR car's laser sees the car itself: beams 0-7 read 0.84-0.92 m in every Car Park scan."""
 
 CARPARK_MAT = "data_set.mat"
 CARPARK_BEACONS_MAT = "beac_juan3.mat"
@@ -95,6 +97,7 @@ def read_sydney_text(directory: Path, skip_bad_lines: bool = False) -> LogData:
         _report_dropped(laser, laser_path, warnings)
         keep, ranges = _ranges(laser, laser_path, skip_bad_lines, warnings)
         log.geometry = SYDNEY_GEOMETRY
+        log.self_return_range_m = SELF_RETURN_RANGE_M
         log.scan_t_s = laser.rows[keep, 0]
         log.scan_ranges_m = ranges
         _check_times(str(laser_path), log.scan_t_s, warnings)
@@ -194,6 +197,7 @@ def _read_carpark_mat(directory: Path) -> LogData:
         motion_model="ackermann",
         vehicle_preset="carpark",
         geometry=SYDNEY_GEOMETRY,
+        self_return_range_m=SELF_RETURN_RANGE_M,
         scan_t_s=t_laser,
         scan_ranges_m=ranges,
         ackermann=ack,
@@ -250,6 +254,7 @@ def _read_victoria_mat(directory: Path, skip_bad_lines: bool) -> LogData:
         ranges = cm / 100.0
         ranges[cm >= NO_RETURN_M * 100] = np.inf
         log.geometry = SYDNEY_GEOMETRY
+        log.self_return_range_m = SELF_RETURN_RANGE_M
         log.scan_t_s = _var(lm, laser_path, "TLsr").ravel().astype(float) / 1000.0
         if len(log.scan_t_s) != len(raw):
             raise IngestError(f"{laser_path}: {len(log.scan_t_s)} laser times for {len(raw)} scans")

@@ -84,7 +84,7 @@ def metadata_for(log: LogData) -> dict[str, dict]:
     else:
         meta["vehicle"] = {"motion_model": "odometry", "preset": "odometry"}
     if log.geometry is not None:
-        meta["sensor"] = {"frame": "laser", **log.geometry.as_dict()}
+        meta["sensor"] = {"frame": "laser", **log.geometry.as_dict(), "self_return_range_m": log.self_return_range_m}
     meta.update(log.extra_metadata)
     return meta
 

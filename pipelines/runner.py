@@ -65,8 +65,10 @@ class Step:
 METHODS = ("gslam", "fastslam1", "fastslam2", "grid", "grid-hr")
 
 
-def make_filter(cfg: RunConfig, initial_pose: np.ndarray) -> SlamFilter:
-    """The SLAM method `cfg.method`, sharing the particle count, seed and range limit of cfg.filter."""
+def make_filter(cfg: RunConfig, initial_pose: np.ndarray, self_return_range_m: float = 0.0) -> SlamFilter:
+    """The SLAM method `cfg.method`, sharing the particle count, seed and range limit of cfg.filter (or,
+    when that is None, the input's `self_return_range_m`)."""
+    min_range_m = cfg.filter.min_range_m if cfg.filter.min_range_m is not None else self_return_range_m
     if cfg.method == "gslam":
         return GSlamFilter(cfg.filter, initial_pose)
     if cfg.method in ("fastslam1", "fastslam2"):
@@ -76,7 +78,7 @@ def make_filter(cfg: RunConfig, initial_pose: np.ndarray) -> SlamFilter:
             version=int(cfg.method[-1]),
             resample_threshold=cfg.filter.resample_threshold,
         )
-        return FastSlamFilter(fs, initial_pose, cfg.filter.min_range_m)
+        return FastSlamFilter(fs, initial_pose, min_range_m)
     if cfg.method in ("grid", "grid-hr"):
         cells = cfg.grid_cells or (3000 if cfg.method == "grid" else 48000)
         return GridSlam(
@@ -84,7 +86,7 @@ def make_filter(cfg: RunConfig, initial_pose: np.ndarray) -> SlamFilter:
                 particles=cfg.filter.particles,
                 seed=cfg.filter.seed,
                 cells=cells,
-                min_range_m=cfg.filter.min_range_m,
+                min_range_m=min_range_m,
                 resample_threshold=cfg.filter.resample_threshold,
             ),
             initial_pose,
@@ -102,7 +104,10 @@ class SlamRunner:
         if log.motion_model == "ackermann":
             self.vehicle = vehicle_preset(cfg.vehicle or log.meta["vehicle"].get("preset", "carpark"))
         self.initial_pose, self.t_init_s = self._initial_pose()
-        self.filter = make_filter(cfg, np.zeros(3) if self.initial_pose is None else self.initial_pose)
+        self.min_range_m = cfg.filter.min_range_m if cfg.filter.min_range_m is not None else log.self_return_range_m
+        self.filter = make_filter(
+            cfg, np.zeros(3) if self.initial_pose is None else self.initial_pose, log.self_return_range_m
+        )
         self.gps: list[tuple[float, float, float]] = []
 
     def _initial_pose(self) -> tuple[np.ndarray | None, float | None]:
@@ -180,7 +185,7 @@ class SlamRunner:
                             return apply_odometry(poses, delta, rng, fcfg.odom_alpha)
 
                     odom_prev = odom_last
-                scan = Scan(ev.stamp_s, ev.ranges_m, geom)
+                scan = Scan(ev.stamp_s, ev.ranges_m, geom, self.min_range_m)
                 t0 = time.perf_counter()
                 result = self.filter.step(scan, predict, ev.intensities)
                 step_ms = (time.perf_counter() - t0) * 1e3

@@ -66,6 +66,7 @@ class InputLog:
             int(s["beam_count"]), float(s["start_angle_rad"]), float(s["angle_increment_rad"]), float(s["max_range_m"])
         )
         self.motion_model = self.meta["vehicle"].get("motion_model", "ackermann")
+        self.self_return_range_m = float(s.get("self_return_range_m", 0.0))
         counts = {}
         if summary is not None and summary.statistics is not None:
             for cid, channel in summary.channels.items():
