@@ -101,10 +101,10 @@ class FilterConfig:
     map (GMapping's scan matcher, on points instead of a grid), then sample around the match."""
     match_sigma_m: float = 0.10
     """Distance scale of the matcher's likelihood field."""
-    match_neighbours: int = 16
-    """1: the field is the distance to the nearest map point; more: to the mean of that many nearest
-    points within match_radius_m (the centre of the scatter of generated points around a surface)."""
-    match_radius_m: float = 0.4
+    match_smoothing: bool = True
+    """Match against the map with each point moved to the mean of its particle's points in the 3 x 3
+    cells (cell_size_m) around it, the centre line of the scatter around a surface, rather than
+    against the scattered points themselves."""
     match_step_xy_m: float = 0.10
     """First hill-climbing step in x and y (halved at each level)."""
     match_step_phi_rad: float = math.radians(1.0)

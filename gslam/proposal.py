@@ -17,7 +17,7 @@ from scipy.spatial import cKDTree
 
 from .config import FilterConfig
 from .motion import wrap_angle
-from .pointmap import PointMap
+from .pointmap import PointMap, smooth_by_cells
 
 _OFFSET_M = 1.0e5  # particles' maps are laid side by side along x, this far apart
 
@@ -32,7 +32,7 @@ class StackedMaps:
     xy: np.ndarray
 
     @classmethod
-    def of(cls, maps: list[PointMap]) -> StackedMaps:
+    def of(cls, maps: list[PointMap], smooth_cell_m: float = 0.0) -> StackedMaps:
         ids: dict[int, int] = {}
         distinct: list[PointMap] = []
         slot = np.empty(len(maps), dtype=np.int64)
@@ -45,39 +45,22 @@ class StackedMaps:
         if sizes.sum() == 0:
             return cls(None, slot, sizes[slot], np.empty((0, 2)))
         xy = np.concatenate([m.xy for m in distinct])
+        if smooth_cell_m > 0:  # maps are sorted by cell, so the concatenation is sorted by (slot, cell)
+            xy = smooth_by_cells(np.repeat(np.arange(len(distinct)), sizes), xy, smooth_cell_m)
         xy = xy + np.column_stack([np.repeat(np.arange(len(distinct)) * _OFFSET_M, sizes), np.zeros(len(xy))])
         return cls(cKDTree(xy), slot, sizes[slot], xy)
 
-    def scores(
-        self,
-        particle: np.ndarray,
-        poses: np.ndarray,
-        pts_sensor: np.ndarray,
-        sigma_m: float,
-        neighbours: int = 1,
-        radius_m: float = 0.3,
-    ) -> np.ndarray:
+    def scores(self, particle: np.ndarray, poses: np.ndarray, pts_sensor: np.ndarray, sigma_m: float) -> np.ndarray:
         """Likelihood-field score of the scan end points `pts_sensor` (K, 2) from `poses` (P, 3), each
-        against the map of `particle[p]`: sum over end points of exp(-d^2 / 2 sigma^2), d capped at
-        3 sigma. With neighbours 1, d is the distance to the nearest map point; with more, the distance
-        to the mean of the `neighbours` nearest map points within `radius_m` (the centre of the scatter
-        of generated points around a surface, rather than its nearest stray point)."""
+        against the map of `particle[p]`: sum over end points of exp(-d^2 / 2 sigma^2), d the distance to
+        the nearest (smoothed) map point, capped at 3 sigma."""
         c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
         wx = (
             poses[:, 0, None] + c * pts_sensor[:, 0] - s * pts_sensor[:, 1] + (self.slot[particle] * _OFFSET_M)[:, None]
         )
         wy = poses[:, 1, None] + s * pts_sensor[:, 0] + c * pts_sensor[:, 1]
-        world = np.column_stack([wx.ravel(), wy.ravel()])
         cap = 3 * sigma_m
-        if neighbours <= 1:
-            d, _ = self.tree.query(world, distance_upper_bound=cap)
-        else:
-            dk, ik = self.tree.query(world, k=neighbours, distance_upper_bound=radius_m)
-            found = np.isfinite(dk)
-            count = found.sum(axis=1)
-            ik = np.minimum(ik, len(self.xy) - 1)
-            mean = np.einsum("ij,ijk->ik", found.astype(float), self.xy[ik]) / np.maximum(count, 1)[:, None]
-            d = np.where(count > 0, np.hypot(world[:, 0] - mean[:, 0], world[:, 1] - mean[:, 1]), cap)
+        d, _ = self.tree.query(np.column_stack([wx.ravel(), wy.ravel()]), distance_upper_bound=cap)
         d = np.minimum(d, cap).reshape(len(poses), len(pts_sensor))
         return np.exp(-0.5 * (d / sigma_m) ** 2).sum(axis=1)
 
@@ -98,7 +81,7 @@ def match_scans(
     matched = np.zeros(n, dtype=bool)
     if len(pts_sensor) < 10:
         return out, matched, np.zeros(n)
-    stacked = StackedMaps.of(maps)
+    stacked = StackedMaps.of(maps, cfg.cell_size_m if cfg.match_smoothing else 0.0)
     if stacked.tree is None:
         return out, matched, np.zeros(n)
     sigma = cfg.match_sigma_m
@@ -107,7 +90,7 @@ def match_scans(
     score = np.zeros(n)
     if len(idx) == 0:
         return out, matched, score
-    score[idx] = stacked.scores(idx, out[idx], pts_sensor, sigma, cfg.match_neighbours, cfg.match_radius_m)
+    score[idx] = stacked.scores(idx, out[idx], pts_sensor, sigma)
     step = np.tile([cfg.match_step_xy_m, cfg.match_step_xy_m, cfg.match_step_phi_rad], (n, 1))
     level = np.where(usable, 0, cfg.match_levels)
     for _ in range(cfg.match_max_iterations):
@@ -115,9 +98,7 @@ def match_scans(
         if len(active) == 0:
             break
         cand = out[active, None, :] + _MOVES[None] * step[active, None, :]  # (A, 6, 3)
-        cand_scores = stacked.scores(
-            np.repeat(active, 6), cand.reshape(-1, 3), pts_sensor, sigma, cfg.match_neighbours, cfg.match_radius_m
-        ).reshape(-1, 6)
+        cand_scores = stacked.scores(np.repeat(active, 6), cand.reshape(-1, 3), pts_sensor, sigma).reshape(-1, 6)
         best = cand_scores.argmax(axis=1)
         best_score = cand_scores[np.arange(len(active)), best]
         better = best_score > score[active] * (1 + 1e-9)
