@@ -13,6 +13,7 @@ PriorInterpolation = Literal["cell_mean", "nearest_mean", "idw", "constant"]
 Proposal = Literal["motion", "scan_match"]
 UpdateSchedule = Literal["every_scan", "travel"]
 ControlNoise = Literal["per_sample", "per_interval"]
+FillSkipped = Literal["odometry", "sampled"]
 
 
 @dataclass
@@ -113,6 +114,9 @@ class FilterConfig:
     """Step halvings before the climb stops."""
     match_max_iterations: int = 60
     """Cap on hill-climbing iterations (each tries 6 moves for every particle still climbing)."""
+    match_window_margin_m: float = 2.0
+    """Map points farther than this outside the box of the scan's end points (at the motion sample)
+    are left out of the match: the climb never moves that far, and indoor maps are large."""
     match_min_score: float = 0.2
     """A match counts when its score is at least this fraction of the returns used; otherwise the
     particle keeps its motion-model sample."""
@@ -124,6 +128,10 @@ class FilterConfig:
     """"every_scan" (the paper) or "travel": only after min_travel_m or min_turn_rad since the last update."""
     min_travel_m: float = 1.0
     min_turn_rad: float = 0.5
+    fill_skipped: FillSkipped = "odometry"
+    """Poses recorded for the scans the travel schedule skips: "odometry", each particle's last updated
+    pose moved by the noise-free motion (as GMapping fills them); "sampled", the motion-model samples
+    the filter carries (their noise is only there to be weighed at the next update)."""
 
     # Resampling.
     resample_threshold: float = 0.5
@@ -156,6 +164,7 @@ class FilterConfig:
             "proposal": ("motion", "scan_match"),
             "update_schedule": ("every_scan", "travel"),
             "control_noise": ("per_sample", "per_interval"),
+            "fill_skipped": ("odometry", "sampled"),
         }
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:

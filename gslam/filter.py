@@ -26,8 +26,8 @@ from .scan import Scan
 from .trajectory import AncestryTree
 from .weights import log_weight_beam_sum, log_weight_likelihood_field, log_weight_sum
 
-Predictor = Callable[[np.ndarray, np.random.Generator], np.ndarray]
-"""Step 1's motion model: (poses (N,3), rng) -> sampled poses (N,3)."""
+Predictor = Callable[[np.ndarray, np.random.Generator | None], np.ndarray]
+"""Step 1's motion model: (poses (N,3), rng) -> sampled poses (N,3); rng None: the noise-free motion."""
 
 
 @dataclass
@@ -79,6 +79,7 @@ class GSlamFilter:
         self.tree = AncestryTree()
         self.steps = 0
         self._last_update_pose: np.ndarray | None = None
+        self._filled = self.poses.copy()  # noise-free motion since the last update (recorded for skipped scans)
 
     # ------------------------------------------------------------------------------------------
     def best_particle(self) -> int:
@@ -111,8 +112,11 @@ class GSlamFilter:
         # 1. Draw s_t^i from the motion model.
         if predict is not None:
             self.poses = predict(self.poses, self.rng)
+            if cfg.fill_skipped == "odometry":
+                self._filled = predict(self._filled, None)
         if not self._due():
-            self.tree.record(scan.t_s, self.poses)
+            recorded = self._filled if cfg.fill_skipped == "odometry" else self.poses
+            self.tree.record(scan.t_s, recorded)
             self.steps += 1
             best = self.best_particle()
             return StepResult(
@@ -123,7 +127,7 @@ class GSlamFilter:
                 False,
                 False,
                 best,
-                self.poses[best].copy(),
+                recorded[best].copy(),
                 len(self.maps[best]),
                 sum(len(m) for m in self.maps),
                 0,
@@ -183,6 +187,7 @@ class GSlamFilter:
             self.weights = np.full(n, 1.0 / n)
             result.resampled = True
         self._last_update_pose = self.poses[self.best_particle()].copy()
+        self._filled = self.poses.copy()
         self.steps += 1
         return result
 

@@ -32,7 +32,9 @@ class StackedMaps:
     xy: np.ndarray
 
     @classmethod
-    def of(cls, maps: list[PointMap], smooth_cell_m: float = 0.0) -> StackedMaps:
+    def of(cls, maps: list[PointMap], smooth_cell_m: float = 0.0, windows: np.ndarray | None = None) -> StackedMaps:
+        """`windows` (N, 4): per particle, the box (x_min, y_min, x_max, y_max) outside which its map
+        points cannot take part (a map shared by several particles keeps the union of their boxes)."""
         ids: dict[int, int] = {}
         distinct: list[PointMap] = []
         slot = np.empty(len(maps), dtype=np.int64)
@@ -45,9 +47,20 @@ class StackedMaps:
         if sizes.sum() == 0:
             return cls(None, slot, sizes[slot], np.empty((0, 2)))
         xy = np.concatenate([m.xy for m in distinct])
+        owner = np.repeat(np.arange(len(distinct)), sizes)
         if smooth_cell_m > 0:  # maps are sorted by cell, so the concatenation is sorted by (slot, cell)
-            xy = smooth_by_cells(np.repeat(np.arange(len(distinct)), sizes), xy, smooth_cell_m)
-        xy = xy + np.column_stack([np.repeat(np.arange(len(distinct)) * _OFFSET_M, sizes), np.zeros(len(xy))])
+            xy = smooth_by_cells(owner, xy, smooth_cell_m)
+        if windows is not None:
+            box = np.full((len(distinct), 4), [np.inf, np.inf, -np.inf, -np.inf])
+            np.minimum.at(box[:, :2], slot, windows[:, :2])
+            np.maximum.at(box[:, 2:], slot, windows[:, 2:])
+            b = box[owner]
+            inside = (xy[:, 0] >= b[:, 0]) & (xy[:, 1] >= b[:, 1]) & (xy[:, 0] <= b[:, 2]) & (xy[:, 1] <= b[:, 3])
+            xy, owner = xy[inside], owner[inside]
+            sizes = np.bincount(owner, minlength=len(distinct))
+            if len(xy) == 0:
+                return cls(None, slot, sizes[slot], np.empty((0, 2)))
+        xy = xy + np.column_stack([owner * _OFFSET_M, np.zeros(len(xy))])
         return cls(cKDTree(xy), slot, sizes[slot], xy)
 
     def scores(self, particle: np.ndarray, poses: np.ndarray, pts_sensor: np.ndarray, sigma_m: float) -> np.ndarray:
@@ -81,7 +94,13 @@ def match_scans(
     matched = np.zeros(n, dtype=bool)
     if len(pts_sensor) < 10:
         return out, matched, np.zeros(n)
-    stacked = StackedMaps.of(maps, cfg.cell_size_m if cfg.match_smoothing else 0.0)
+    # Only map points near the scan can match: a box around the end points at each particle's pose.
+    c, s = np.cos(out[:, 2])[:, None], np.sin(out[:, 2])[:, None]
+    wx = out[:, 0, None] + c * pts_sensor[:, 0] - s * pts_sensor[:, 1]
+    wy = out[:, 1, None] + s * pts_sensor[:, 0] + c * pts_sensor[:, 1]
+    margin = cfg.match_window_margin_m
+    windows = np.column_stack([wx.min(1) - margin, wy.min(1) - margin, wx.max(1) + margin, wy.max(1) + margin])
+    stacked = StackedMaps.of(maps, cfg.cell_size_m if cfg.match_smoothing else 0.0, windows)
     if stacked.tree is None:
         return out, matched, np.zeros(n)
     sigma = cfg.match_sigma_m

@@ -209,7 +209,7 @@ def test_filter_is_deterministic_for_a_seed():
         flt = GSlamFilter(FilterConfig(particles=5, seed=seed, proposal="motion"), np.zeros(3))
 
         def predict(poses, g):
-            return poses + g.standard_normal(poses.shape) * 0.05
+            return poses.copy() if g is None else poses + g.standard_normal(poses.shape) * 0.05
 
         for sc in scans:
             flt.step(sc, predict)
@@ -219,6 +219,26 @@ def test_filter_is_deterministic_for_a_seed():
     np.testing.assert_array_equal(a[0], b[0])
     np.testing.assert_array_equal(a[1], b[1])
     assert not np.array_equal(a[0], c[0])
+
+
+def test_skipped_scans_are_filled_with_noise_free_motion():
+    geom = ScanGeometry(181, -math.pi / 2, math.pi / 180, 30.0)
+    scans = [Scan(float(i), np.full(181, 5.0), geom) for i in range(6)]
+
+    def predict(poses, g):  # 0.3 m ahead per scan, with 5 cm of noise when sampled
+        out = poses + [0.3, 0.0, 0.0]
+        return out if g is None else out + g.standard_normal(poses.shape) * [0.05, 0.05, 0.0]
+
+    trajectories = {}
+    for fill in ("odometry", "sampled"):
+        flt = GSlamFilter(FilterConfig(particles=4, seed=0, proposal="motion", fill_skipped=fill), np.zeros(3))
+        updated = [flt.step(sc, predict).updated for sc in scans]
+        assert updated == [True, False, False, False, True, False]  # after 1.2 m of travel
+        trajectories[fill] = flt.tree.trajectory(0)[1]
+    odo = trajectories["odometry"]
+    np.testing.assert_allclose(np.diff(odo[:4, 0]), 0.3)  # skipped scans: exactly the odometry
+    np.testing.assert_allclose(odo[1:4, 1], odo[0, 1])  # no sideways noise either
+    assert np.abs(np.diff(trajectories["sampled"][:4, 0]) - 0.3).max() > 0.01
 
 
 def test_pole_map_error_on_constructed_maps():

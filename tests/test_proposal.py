@@ -78,6 +78,11 @@ def test_stacked_maps_share_a_slot_per_distinct_map():
     assert stacked.slot.tolist() == [0, 1, 0, 1, 1]
     assert stacked.sizes.tolist() == [30, 25, 30, 25, 25]
     assert stacked.tree.n == 55
+    # Windows: particle 0 and 2 (map a, at the origin) look far away; the union of 1, 3, 4 holds map b.
+    far, near = [50.0, 50.0, 60.0, 60.0], [0.5, 0.5, 1.5, 1.5]
+    windowed = StackedMaps.of([a, b, a, b, b], windows=np.array([far, near, far, far, far]))
+    assert windowed.sizes.tolist() == [0, 25, 0, 25, 25]
+    assert windowed.tree.n == 25
 
 
 def test_match_score_peaks_at_the_truth():
