@@ -169,6 +169,8 @@ class FilterConfig:
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}")
+        if self.match_levels < 1 or self.match_max_iterations < 1:
+            raise ValueError("match_levels and match_max_iterations must be at least 1")
         if not 0 < self.resample_threshold <= 1:
             raise ValueError("resample_threshold must be in (0, 1]")
         for name in (

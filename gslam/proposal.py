@@ -5,7 +5,12 @@ exp(-d^2 / 2 sigma^2), d its distance to the nearest map point (capped at 3 sigm
 refined by hill climbing, as GMapping's scan matcher does on grids: from the motion-model sample, try
 one step forwards and backwards along x, y and phi, move while the score improves, halve the steps
 when it does not. All particles climb at once: their maps go into one KD-tree, each particle's points
-shifted by its own offset, so one query serves every candidate pose of every particle.
+shifted by its own offset, so one query serves every candidate pose of every particle. The tree holds
+each map smoothed per 3 x 3 cells (the centre line of the scatter that point generation leaves around
+surfaces) and only the points near the scan's end points.
+
+As in GMapping, the particle is then weighed at the matched pose (step 5, unchanged): an
+approximation of the weight of the optimal proposal that ignores how the match moved the sample.
 """
 
 from __future__ import annotations

@@ -118,3 +118,12 @@ def test_free_space_guard_spares_points_beside_a_nearer_return():
     np.testing.assert_allclose(
         transform_points(np.array([1.0, 2.0, math.pi / 2]), np.array([[1.0, 0.0]])), [[1.0, 3.0]]
     )
+
+
+def test_matcher_options_are_validated():
+    import pytest
+
+    with pytest.raises(ValueError, match="match_levels"):
+        FilterConfig(match_levels=0)
+    with pytest.raises(ValueError, match="match_sigma_m"):
+        FilterConfig(match_sigma_m=0.0)
