@@ -27,6 +27,14 @@ from .pointmap import PointMap, smooth_by_cells
 _OFFSET_M = 1.0e5  # particles' maps are laid side by side along x, this far apart
 
 
+def _end_points(poses: np.ndarray, pts_sensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World x and y (P, K) of the sensor-frame end points (K, 2) seen from each of `poses` (P, 3)."""
+    c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+    wx = poses[:, 0, None] + c * pts_sensor[:, 0] - s * pts_sensor[:, 1]
+    wy = poses[:, 1, None] + s * pts_sensor[:, 0] + c * pts_sensor[:, 1]
+    return wx, wy
+
+
 @dataclass
 class StackedMaps:
     """The distinct maps of the particles in one KD-tree; `slot[i]` is the map of particle i."""
@@ -34,7 +42,6 @@ class StackedMaps:
     tree: cKDTree | None
     slot: np.ndarray
     sizes: np.ndarray
-    xy: np.ndarray
 
     @classmethod
     def of(cls, maps: list[PointMap], smooth_cell_m: float = 0.0, windows: np.ndarray | None = None) -> StackedMaps:
@@ -50,7 +57,7 @@ class StackedMaps:
             slot[i] = k
         sizes = np.array([len(m) for m in distinct])
         if sizes.sum() == 0:
-            return cls(None, slot, sizes[slot], np.empty((0, 2)))
+            return cls(None, slot, sizes[slot])
         xy = np.concatenate([m.xy for m in distinct])
         owner = np.repeat(np.arange(len(distinct)), sizes)
         if smooth_cell_m > 0:  # maps are sorted by cell, so the concatenation is sorted by (slot, cell)
@@ -64,19 +71,16 @@ class StackedMaps:
             xy, owner = xy[inside], owner[inside]
             sizes = np.bincount(owner, minlength=len(distinct))
             if len(xy) == 0:
-                return cls(None, slot, sizes[slot], np.empty((0, 2)))
+                return cls(None, slot, sizes[slot])
         xy = xy + np.column_stack([owner * _OFFSET_M, np.zeros(len(xy))])
-        return cls(cKDTree(xy), slot, sizes[slot], xy)
+        return cls(cKDTree(xy), slot, sizes[slot])
 
     def scores(self, particle: np.ndarray, poses: np.ndarray, pts_sensor: np.ndarray, sigma_m: float) -> np.ndarray:
         """Likelihood-field score of the scan end points `pts_sensor` (K, 2) from `poses` (P, 3), each
         against the map of `particle[p]`: sum over end points of exp(-d^2 / 2 sigma^2), d the distance to
         the nearest (smoothed) map point, capped at 3 sigma."""
-        c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
-        wx = (
-            poses[:, 0, None] + c * pts_sensor[:, 0] - s * pts_sensor[:, 1] + (self.slot[particle] * _OFFSET_M)[:, None]
-        )
-        wy = poses[:, 1, None] + s * pts_sensor[:, 0] + c * pts_sensor[:, 1]
+        wx, wy = _end_points(poses, pts_sensor)
+        wx = wx + (self.slot[particle] * _OFFSET_M)[:, None]
         cap = 3 * sigma_m
         d, _ = self.tree.query(np.column_stack([wx.ravel(), wy.ravel()]), distance_upper_bound=cap)
         d = np.minimum(d, cap).reshape(len(poses), len(pts_sensor))
@@ -100,9 +104,7 @@ def match_scans(
     if len(pts_sensor) < 10:
         return out, matched, np.zeros(n)
     # Only map points near the scan can match: a box around the end points at each particle's pose.
-    c, s = np.cos(out[:, 2])[:, None], np.sin(out[:, 2])[:, None]
-    wx = out[:, 0, None] + c * pts_sensor[:, 0] - s * pts_sensor[:, 1]
-    wy = out[:, 1, None] + s * pts_sensor[:, 0] + c * pts_sensor[:, 1]
+    wx, wy = _end_points(out, pts_sensor)
     margin = cfg.match_window_margin_m
     windows = np.column_stack([wx.min(1) - margin, wy.min(1) - margin, wx.max(1) + margin, wy.max(1) + margin])
     stacked = StackedMaps.of(maps, cfg.cell_size_m if cfg.match_smoothing else 0.0, windows)
