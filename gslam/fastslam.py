@@ -15,7 +15,7 @@ import numpy as np
 from .filter import StepResult
 from .landmarks import PoleExtractorConfig, poles_from_geometry, poles_from_intensity
 from .motion import wrap_angle
-from .resampling import reweight_and_resample
+from .resampling import continue_from_parents, reweight_and_resample
 from .scan import Scan
 from .trajectory import AncestryTree
 
@@ -140,10 +140,7 @@ class FastSlam:
         self.tree.record(t_s, self.poses)
         self.resampled = parents is not None
         if self.resampled:
-            self.poses = self.poses[parents]
-            self.maps = [self.maps[a] for a in parents]
-            self.tree.continue_from(parents)
-            self.weights = np.full(cfg.particles, 1.0 / cfg.particles)
+            self.poses, self.maps, self.weights = continue_from_parents(parents, self.poses, self.maps, self.tree)
         return ess
 
     def _proposal(

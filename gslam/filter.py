@@ -21,7 +21,7 @@ from .pointmap import (
     update_probabilities,
 )
 from .proposal import match_scans
-from .resampling import effective_sample_size, reweight_and_resample
+from .resampling import continue_from_parents, effective_sample_size, reweight_and_resample
 from .scan import Scan
 from .trajectory import AncestryTree
 from .weights import log_weight_beam_sum, log_weight_likelihood_field, log_weight_sum
@@ -181,10 +181,7 @@ class GSlamFilter:
         )
         self.tree.record(scan.t_s, self.poses)
         if parents is not None:
-            self.poses = self.poses[parents]
-            self.maps = [self.maps[a] for a in parents]  # shared by reference: copy-on-write
-            self.tree.continue_from(parents)
-            self.weights = np.full(n, 1.0 / n)
+            self.poses, self.maps, self.weights = continue_from_parents(parents, self.poses, self.maps, self.tree)
             result.resampled = True
         self._last_update_pose = self.poses[self.best_particle()].copy()
         self._filled = self.poses.copy()

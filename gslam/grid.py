@@ -15,7 +15,7 @@ import numpy as np
 from scipy.ndimage import distance_transform_edt
 
 from .filter import Predictor, StepResult
-from .resampling import reweight_and_resample
+from .resampling import continue_from_parents, reweight_and_resample
 from .scan import Scan, transform_points
 from .trajectory import AncestryTree
 
@@ -165,9 +165,6 @@ class GridSlam:
         )
         self.tree.record(scan.t_s, self.poses)
         if parents is not None:
-            self.poses = self.poses[parents]
-            self.grids = [self.grids[a] for a in parents]
-            self.tree.continue_from(parents)
-            self.weights = np.full(cfg.particles, 1.0 / cfg.particles)
+            self.poses, self.grids, self.weights = continue_from_parents(parents, self.poses, self.grids, self.tree)
             result.resampled = True
         return result

@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
+from typing import TypeVar
+
 import numpy as np
+
+from .trajectory import AncestryTree
+
+MapT = TypeVar("MapT")
 
 
 def normalise_log_weights(log_w: np.ndarray) -> np.ndarray:
@@ -50,10 +56,19 @@ def reweight_and_resample(
     parents when the effective sample size falls below `threshold` x N.
 
     Returns (normalised weights, effective sample size, parent indices or None when not resampling).
-    The caller reorders its particles by the parents and resets the weights to 1/N.
+    The caller then continues its particles from the parents (`continue_from_parents`).
     """
     with np.errstate(divide="ignore"):
         w = normalise_log_weights(np.log(weights) + log_likelihood)
     ess = effective_sample_size(w)
     parents = residual_systematic_resampling(w, rng) if ess < threshold * len(w) else None
     return w, ess, parents
+
+
+def continue_from_parents(
+    parents: np.ndarray, poses: np.ndarray, maps: list[MapT], tree: AncestryTree
+) -> tuple[np.ndarray, list[MapT], np.ndarray]:
+    """The particles after resampling: their parents' poses and maps (maps shared by reference, so
+    copy-on-write), histories continued in the ancestry tree, and uniform weights."""
+    tree.continue_from(parents)
+    return poses[parents], [maps[a] for a in parents], np.full(len(parents), 1.0 / len(parents))
