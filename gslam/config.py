@@ -8,7 +8,7 @@ from typing import Any, Literal
 
 ObservationUnit = Literal["beam", "scan"]
 MapUpdate = Literal["global", "observed", "binary"]
-Weighting = Literal["sum", "beam_sum", "likelihood_field"]
+Weighting = Literal["sum", "beam_sum", "likelihood_field", "matched_field"]
 PriorInterpolation = Literal["cell_mean", "nearest_mean", "idw", "constant"]
 Proposal = Literal["motion", "scan_match"]
 UpdateSchedule = Literal["every_scan", "travel"]
@@ -73,15 +73,25 @@ class FilterConfig:
     """Cell size of the density control."""
 
     # Open point 4: the importance weight.
-    weighting: Weighting = "beam_sum"
+    weighting: Weighting = "matched_field"
     """"sum": w = sum_j q_j p_j (literal); "beam_sum": product over returns of the per-beam sum;
-    "likelihood_field": product over returns of the best-matching map point's Gaussian score."""
+    "likelihood_field": product over returns of the best-matching map point's Gaussian score;
+    "matched_field": the scan's log-likelihood at the matched pose from the scan matcher's field
+    (sum over returns of -d^2 / 2 weight_sigma_m^2, d capped at weight_miss_m), divided by
+    weight_gain x N, as GMapping weighs its particles (`gslam.fieldmatch`)."""
     weight_sigma_m: float = 0.20
-    """Distance scale of the likelihood-field and beam-sum weights."""
+    """Distance scale of the likelihood-field, beam-sum and matched-field weights."""
     weight_floor: float = 0.05
-    """Per-return likelihood floor (outliers, unmapped space)."""
+    """Per-return likelihood floor (outliers, unmapped space) of beam_sum and likelihood_field."""
     weight_tempering: float = 0.3
-    """Exponent on the product over returns (returns are not independent)."""
+    """Exponent on the product over returns of beam_sum and likelihood_field (returns are not independent)."""
+    weight_miss_m: float = 0.7
+    """matched_field: a return with no occupied cell near its end point counts as this far off
+    (GMapping's null likelihood -0.5 / 0.075 with sigma 0.2 m)."""
+    weight_gain: float = 3.0
+    """matched_field: the log-likelihood is divided by weight_gain x N before it multiplies the weight
+    (GMapping's observation gain, ogain = 3): returns are far from independent, and the division
+    keeps the effective sample size from collapsing at every update."""
     weight_beam_stride: int = 2
     """Use every k-th return in the weight and the scan matcher."""
 
@@ -100,26 +110,29 @@ class FilterConfig:
     """"motion": sample the motion model (the paper); "scan_match": sample the motion model, then refine
     each particle's pose by hill climbing a likelihood field of the scan over the particle's own point
     map (GMapping's scan matcher, on points instead of a grid), then sample around the match."""
-    match_sigma_m: float = 0.10
-    """Distance scale of the matcher's likelihood field."""
-    match_smoothing: bool = True
-    """Match against the map with each point moved to the mean of its particle's points in the 3 x 3
-    cells (cell_size_m) around it, the centre line of the scatter around a surface, rather than
-    against the scattered points themselves."""
-    match_step_xy_m: float = 0.10
-    """First hill-climbing step in x and y (halved at each level)."""
-    match_step_phi_rad: float = math.radians(1.0)
-    """First hill-climbing step in heading (halved at each level)."""
-    match_levels: int = 4
-    """Step halvings before the climb stops."""
-    match_max_iterations: int = 60
-    """Cap on hill-climbing iterations (each tries 6 moves for every particle still climbing)."""
-    match_window_margin_m: float = 2.0
-    """Map points farther than this outside the box of the scan's end points (at the motion sample)
-    are left out of the match: the climb never moves that far, and indoor maps are large."""
-    match_min_score: float = 0.2
-    """A match counts when its score is at least this fraction of the returns used; otherwise the
-    particle keeps its motion-model sample."""
+    match_sigma_m: float = 0.158
+    """Distance scale of the matcher's score exp(-d^2 / 2 sigma^2) (GMapping: exp(-d^2 / 0.05))."""
+    match_cell_m: float = 0.05
+    """Cell of the raster the matcher builds from each particle's map points near the scan; a cell
+    keeps the mean of its points (GMapping's map resolution, delta 0.05 m)."""
+    match_kernel: int = 1
+    """Cells searched either side of an end point's cell for the nearest occupied cell."""
+    match_min_p: float = 0.5
+    """Map points with at least this probability take part in matching and weighing."""
+    match_step_xy_m: float = 0.05
+    """First hill-climbing step in x and y (halved at each level; GMapping lstep)."""
+    match_step_phi_rad: float = 0.05
+    """First hill-climbing step in heading (halved at each level; GMapping astep)."""
+    match_levels: int = 5
+    """Step halvings before the climb stops (GMapping iterations)."""
+    match_max_iterations: int = 100
+    """Cap on hill-climbing iterations (each tries 6 moves)."""
+    match_window_margin_m: float = 1.0
+    """The matcher rasterises the map points inside the box of the scan's end points (at the motion
+    sample) grown by this margin: work local to the scan, whatever the size of the map."""
+    match_min_score: float = 0.0
+    """A match counts when its score exceeds this fraction of the returns used; otherwise the
+    particle keeps its motion-model sample (GMapping minimumScore 0)."""
     proposal_sigma_xy_m: float = 0.01
     proposal_sigma_phi_rad: float = math.radians(0.1)
 
@@ -143,8 +156,9 @@ class FilterConfig:
     speed_sigma_mps: float = 0.10
     speed_sigma_rel: float = 0.05
     steering_sigma_rad: float = math.radians(1.0)
-    odom_alpha: tuple[float, float, float, float] = (0.05, 0.01, 0.05, 0.01)
-    """Standard odometry model noise (rot-rot, rot-trans, trans-trans, trans-rot)."""
+    odom_sigma: tuple[float, float, float, float] = (0.1, 0.2, 0.1, 0.2)
+    """Odometry motion noise (srr, srt, str, stt), in the robot frame (`motion.apply_odometry`): sd of
+    translation per metre and per radian, sd of rotation per metre and per radian (GMapping's defaults)."""
     initial_sigma_xy_m: float = 0.0
     initial_sigma_phi_rad: float = 0.0
 
@@ -159,7 +173,7 @@ class FilterConfig:
         choices = {
             "observation_unit": ("beam", "scan"),
             "map_update": ("global", "observed", "binary"),
-            "weighting": ("sum", "beam_sum", "likelihood_field"),
+            "weighting": ("sum", "beam_sum", "likelihood_field", "matched_field"),
             "prior_interpolation": ("cell_mean", "nearest_mean", "idw", "constant"),
             "proposal": ("motion", "scan_match"),
             "update_schedule": ("every_scan", "travel"),
@@ -169,8 +183,8 @@ class FilterConfig:
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}")
-        if self.match_levels < 1 or self.match_max_iterations < 1:
-            raise ValueError("match_levels and match_max_iterations must be at least 1")
+        if self.match_levels < 1 or self.match_max_iterations < 1 or self.match_kernel < 0:
+            raise ValueError("match_levels and match_max_iterations must be at least 1, match_kernel at least 0")
         if not 0 < self.resample_threshold <= 1:
             raise ValueError("resample_threshold must be in (0, 1]")
         for name in (
@@ -182,13 +196,16 @@ class FilterConfig:
             "match_sigma_m",
             "match_step_xy_m",
             "match_step_phi_rad",
+            "match_cell_m",
+            "weight_miss_m",
+            "weight_gain",
         ):
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name} must be positive")
 
     def as_dict(self) -> dict[str, Any]:
         d = asdict(self)
-        d["odom_alpha"] = list(self.odom_alpha)
+        d["odom_sigma"] = list(self.odom_sigma)
         return d
 
     @classmethod
@@ -198,8 +215,8 @@ class FilterConfig:
         if unknown:
             raise ValueError(f"unknown filter option(s): {', '.join(unknown)}")
         data = dict(data)
-        if "odom_alpha" in data:
-            data["odom_alpha"] = tuple(data["odom_alpha"])
+        if "odom_sigma" in data:
+            data["odom_sigma"] = tuple(data["odom_sigma"])
         return cls(**data)
 
     @classmethod

@@ -9,6 +9,8 @@ from typing import Protocol
 import numpy as np
 
 from .config import FilterConfig
+from .fieldmatch import MatchWorkspace, match_and_weigh
+from .mapupdate import UpdateWorkspace, update_maps
 from .motion import wrap_angle
 from .pointmap import (
     FlatMaps,
@@ -20,7 +22,7 @@ from .pointmap import (
     prune_and_thin,
     update_probabilities,
 )
-from .proposal import match_scans
+from .proposal import distinct_maps
 from .resampling import continue_from_parents, effective_sample_size, reweight_and_resample
 from .scan import Scan
 from .trajectory import AncestryTree
@@ -66,8 +68,21 @@ class SlamFilter(Protocol):
 class GSlamFilter:
     """N particles, each a pose, a pose history (shared ancestry tree) and a point map."""
 
-    def __init__(self, cfg: FilterConfig, initial_pose: np.ndarray) -> None:
+    def __init__(self, cfg: FilterConfig, initial_pose: np.ndarray, threads: int | None = None) -> None:
         self.cfg = cfg
+        self._workspace = MatchWorkspace(threads or 1)
+        self._update_workspace = UpdateWorkspace(threads or 1, cfg.max_points_per_cell)
+        self.compiled_update = (
+            cfg.map_update == "binary"
+            and cfg.observation_unit == "beam"
+            and cfg.prior_interpolation == "cell_mean"
+            and cfg.free_space_beams == 0
+            and not cfg.prune_relative
+            and cfg.weighting == "matched_field"
+            and cfg.max_points_per_cell >= 1
+        )
+        """Steps 2 to 4 run compiled and local to the scan (`gslam.mapupdate`) for the default reading of
+        the open points; any other reading runs the numpy steps of `gslam.pointmap` over whole maps."""
         self.rng = np.random.default_rng(cfg.seed)
         n = cfg.particles
         self.poses = np.tile(np.asarray(initial_pose, dtype=float), (n, 1))
@@ -80,6 +95,8 @@ class GSlamFilter:
         self.steps = 0
         self._last_update_pose: np.ndarray | None = None
         self._filled = self.poses.copy()  # noise-free motion since the last update (recorded for skipped scans)
+        self._travel_m = 0.0  # path length and turn of the noise-free motion since the last update
+        self._turn_rad = 0.0
 
     # ------------------------------------------------------------------------------------------
     def best_particle(self) -> int:
@@ -94,14 +111,13 @@ class GSlamFilter:
         return m.xy, m.p
 
     def _due(self) -> bool:
+        """Open point 7: update every scan, or (travel) once the motion since the last update, summed
+        along the way from the odometry or controls without noise, reaches min_travel_m of path or
+        min_turn_rad of turning (GMapping's linearUpdate / angularUpdate): the decision depends on how
+        the vehicle moved, not on the particles' noise."""
         if self.cfg.update_schedule == "every_scan" or self._last_update_pose is None:
             return True
-        best = self.poses[self.best_particle()]
-        last = self._last_update_pose
-        return bool(
-            np.hypot(best[0] - last[0], best[1] - last[1]) >= self.cfg.min_travel_m
-            or abs(wrap_angle(best[2] - last[2])) >= self.cfg.min_turn_rad
-        )
+        return self._travel_m >= self.cfg.min_travel_m or self._turn_rad >= self.cfg.min_turn_rad
 
     # ------------------------------------------------------------------------------------------
     def step(self, scan: Scan, predict: Predictor | None = None, intensities: np.ndarray | None = None) -> StepResult:
@@ -112,8 +128,10 @@ class GSlamFilter:
         # 1. Draw s_t^i from the motion model.
         if predict is not None:
             self.poses = predict(self.poses, self.rng)
-            if cfg.fill_skipped == "odometry":
-                self._filled = predict(self._filled, None)
+            before = self._filled[0].copy()
+            self._filled = predict(self._filled, None)
+            self._travel_m += float(np.hypot(*(self._filled[0, :2] - before[:2])))
+            self._turn_rad += abs(float(wrap_angle(self._filled[0, 2] - before[2])))
         if not self._due():
             recorded = self._filled if cfg.fill_skipped == "odometry" else self.poses
             self.tree.record(scan.t_s, recorded)
@@ -132,10 +150,76 @@ class GSlamFilter:
                 sum(len(m) for m in self.maps),
                 0,
             )
-        matched = 0
-        if cfg.proposal == "scan_match":
-            matched = self._scan_match_proposal(scan)
+        layout = distinct_maps(self.maps)
+        matched, matched_log_like = self._match_and_weigh(scan, layout)
+        if self.compiled_update:
+            log_like = matched_log_like / (cfg.weight_gain * n) if len(layout[1]) else np.zeros(n)
+            map_points_total = self._update_maps_compiled(scan, layout)
+        else:
+            log_like, map_points_total = self._update_maps_numpy(scan, matched_log_like)
+        # 6. Weights, effective sample size, resampling (RSR).
+        self.weights, ess, parents = reweight_and_resample(self.weights, log_like, cfg.resample_threshold, self.rng)
+        best = self.best_particle()
+        result = StepResult(
+            scan.t_s,
+            self.poses.copy(),
+            self.weights.copy(),
+            ess,
+            False,
+            True,
+            best,
+            self.poses[best].copy(),
+            len(self.maps[best]),
+            map_points_total,
+            matched,
+        )
+        self.tree.record(scan.t_s, self.poses)
+        if parents is not None:
+            self.poses, self.maps, self.weights = continue_from_parents(parents, self.poses, self.maps, self.tree)
+            result.resampled = True
+        self._last_update_pose = self.poses[self.best_particle()].copy()
+        self._filled = self.poses.copy()
+        self._travel_m = self._turn_rad = 0.0
+        self.steps += 1
+        return result
 
+    def _update_maps_compiled(self, scan: Scan, layout: tuple[np.ndarray, ...]) -> int:
+        """Steps 2 to 4 local to the scan, compiled (`gslam.mapupdate`). Returns the points in all maps."""
+        cfg, n = self.cfg, self.cfg.particles
+        returns = scan.returns
+        noise = self.rng.standard_normal((n, int(returns.sum()), cfg.points_per_observation, 2))
+        geom = scan.geometry
+        xy, p, lo, hi = layout
+        out_xy, out_p, bounds = update_maps(
+            xy,
+            p,
+            lo,
+            hi,
+            self.poses,
+            scan.occlusion_ranges_m,
+            returns,
+            geom.start_angle_rad,
+            geom.angle_increment_rad,
+            geom.max_range_m,
+            noise,
+            range_sigma_m=cfg.range_sigma_m,
+            bearing_sigma_rad=cfg.bearing_sigma_rad,
+            hit_sigma_m=cfg.hit_sigma_m,
+            hit_ratio=cfg.hit_ratio,
+            free_ratio=cfg.free_ratio,
+            prune_threshold=cfg.prune_threshold,
+            cell_size_m=cfg.cell_size_m,
+            prior_p0=cfg.prior_p0,
+            max_points_per_cell=cfg.max_points_per_cell,
+            workspace=self._update_workspace,
+        )
+        self.maps = [PointMap(out_xy[a:b], out_p[a:b]) for a, b in bounds]
+        return int((bounds[:, 1] - bounds[:, 0]).sum())
+
+    def _update_maps_numpy(self, scan: Scan, matched_log_like: np.ndarray) -> tuple[np.ndarray, int]:
+        """Steps 2 to 5 over whole maps with numpy, for every reading of the open points. Returns (the
+        step's log-likelihoods, the points in all maps)."""
+        cfg, n = self.cfg, self.cfg.particles
         flat = FlatMaps.of(self.maps)
         # 2. Generate new points around the returns (drawn z_hat, inverse of g, interpolated prior).
         new_owner, new_xy, new_q, _ = draw_new_points(self.poses, scan, cfg, self.rng)
@@ -155,47 +239,53 @@ class GSlamFilter:
             log_like = log_weight_sum(all_q, all_prev, all_owner, n)
         elif cfg.weighting == "beam_sum":
             log_like = log_weight_beam_sum(flat, r, j, z, observed, scan, n, cfg)
-        else:
+        elif cfg.weighting == "likelihood_field":
             log_like = log_weight_likelihood_field(self.maps, self.poses, scan, cfg)
+        else:
+            log_like = matched_log_like / (cfg.weight_gain * n)
         if flat.p.size == 0:
             log_like = np.zeros(n)  # first scan: nothing to compare with
         p_new = update_probabilities(all_prev, all_q, all_owner, all_observed, n, cfg)
         # 4. Remove meaningless points (and thin dense cells).
         pruned = prune_and_thin(FlatMaps(all_xy, p_new, all_owner), n, cfg)
         self.maps = pruned.split(n)
-        # 6. Weights, effective sample size, resampling (RSR).
-        self.weights, ess, parents = reweight_and_resample(self.weights, log_like, cfg.resample_threshold, self.rng)
-        best = self.best_particle()
-        result = StepResult(
-            scan.t_s,
-            self.poses.copy(),
-            self.weights.copy(),
-            ess,
-            False,
-            True,
-            best,
-            self.poses[best].copy(),
-            len(self.maps[best]),
-            len(pruned.p),
-            matched,
-        )
-        self.tree.record(scan.t_s, self.poses)
-        if parents is not None:
-            self.poses, self.maps, self.weights = continue_from_parents(parents, self.poses, self.maps, self.tree)
-            result.resampled = True
-        self._last_update_pose = self.poses[self.best_particle()].copy()
-        self._filled = self.poses.copy()
-        self.steps += 1
-        return result
+        return log_like, len(pruned.p)
 
-    def _scan_match_proposal(self, scan: Scan) -> int:
+    def _match_and_weigh(self, scan: Scan, layout: tuple[np.ndarray, ...]) -> tuple[int, np.ndarray]:
         """Open point 6: refine every particle's motion-model sample by matching the scan against its own
-        map (`proposal.match_scans`), then sample around the match."""
+        map (`fieldmatch.match_and_weigh`), then sample around the match; and the scan's log-likelihood
+        at the resulting pose (the "matched_field" weight). Returns (particles matched, log-likelihoods)."""
         cfg, n = self.cfg, self.cfg.particles
+        if cfg.proposal != "scan_match" and cfg.weighting != "matched_field":
+            return 0, np.zeros(n)
         _, z, b = scan.return_polar()
         sel = slice(None, None, cfg.weight_beam_stride)
         pts = np.column_stack([z[sel] * np.cos(b[sel]), z[sel] * np.sin(b[sel])])
-        poses, matched, _ = match_scans(self.maps, self.poses, pts, cfg)
+        xy, p, lo, hi = layout
+        climb = cfg.proposal == "scan_match"
+        poses, score, log_like, hits = match_and_weigh(
+            xy,
+            p,
+            lo,
+            hi,
+            self.poses,
+            pts,
+            cell_m=cfg.match_cell_m,
+            kernel=cfg.match_kernel,
+            min_p=cfg.match_min_p,
+            margin_m=cfg.match_window_margin_m,
+            step_xy_m=cfg.match_step_xy_m,
+            step_phi_rad=cfg.match_step_phi_rad,
+            levels=cfg.match_levels,
+            max_iterations=cfg.match_max_iterations if climb else 0,
+            score_sigma_m=cfg.match_sigma_m,
+            like_sigma_m=cfg.weight_sigma_m,
+            miss_m=cfg.weight_miss_m,
+            workspace=self._workspace,
+        )
+        if not climb:
+            return 0, log_like
+        matched = (score > cfg.match_min_score * len(pts)) & (hits > 0)
         noise = self.rng.standard_normal((n, 3)) * [
             cfg.proposal_sigma_xy_m,
             cfg.proposal_sigma_xy_m,
@@ -203,5 +293,5 @@ class GSlamFilter:
         ]
         poses[matched] += noise[matched]
         poses[:, 2] = wrap_angle(poses[:, 2])
-        self.poses = poses
-        return int(matched.sum())
+        self.poses = np.where(matched[:, None], poses, self.poses)
+        return int(matched.sum()), log_like

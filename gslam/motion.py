@@ -85,34 +85,42 @@ def integrate_ackermann(
 
 
 def odometry_delta(prev: np.ndarray, cur: np.ndarray) -> tuple[float, float, float]:
-    """(rot1, trans, rot2) between two odometry poses (x, y, theta): the standard odometry model."""
+    """(dx, dy, dtheta): the odometry's motion from `prev` to `cur` in the frame of `prev`."""
     dx, dy = cur[0] - prev[0], cur[1] - prev[1]
-    trans = float(np.hypot(dx, dy))
-    rot1 = float(wrap_angle(np.arctan2(dy, dx) - prev[2])) if trans > 1e-6 else 0.0
-    rot2 = float(wrap_angle(cur[2] - prev[2] - rot1))
-    return rot1, trans, rot2
+    c, s = np.cos(prev[2]), np.sin(prev[2])
+    return float(c * dx + s * dy), float(-s * dx + c * dy), float(wrap_angle(cur[2] - prev[2]))
 
 
 def apply_odometry(
     poses: np.ndarray,
     delta: tuple[float, float, float],
     rng: np.random.Generator | None,
-    alpha: tuple[float, float, float, float],
+    sigma: tuple[float, float, float, float],
 ) -> np.ndarray:
-    """Sample the standard odometry motion model (Thrun et al., sample_motion_model_odometry)."""
-    rot1, trans, rot2 = delta
+    """Sample the odometry motion model in the robot frame (GMapping's `MotionModel::drawFromMotion`).
+
+    With the odometry's motion (dx, dy, dtheta) in the previous pose's frame and sigma = (srr, srt,
+    str, stt), each particle moves by that motion plus Gaussian noise of standard deviation
+        x:     srr |dx| + str |dtheta| + 0.3 srr |dy|
+        y:     srr |dy| + str |dtheta| + 0.3 srr |dx|
+        theta: stt |dtheta| + srt sqrt(dx^2 + dy^2)
+    composed onto its own pose. Unlike the rot1-trans-rot2 model, turning on the spot with a few
+    millimetres of wheel slip does not make the heading of the first rotation (and its noise) arbitrary.
+    """
+    dx, dy, dth = delta
     n = poses.shape[0]
-    a1, a2, a3, a4 = alpha
+    srr, srt, str_, stt = sigma
     if rng is not None:
-        # Backwards motion: treat rot1 near +-pi as reversing, as is common for wheeled robots.
-        r1 = rot1 - rng.standard_normal(n) * np.sqrt(a1 * rot1**2 + a2 * trans**2)
-        tr = trans - rng.standard_normal(n) * np.sqrt(a3 * trans**2 + a4 * (rot1**2 + rot2**2))
-        r2 = rot2 - rng.standard_normal(n) * np.sqrt(a1 * rot2**2 + a2 * trans**2)
+        sxy = 0.3 * srr
+        e = rng.standard_normal((n, 3))
+        mx = dx + e[:, 0] * (srr * abs(dx) + str_ * abs(dth) + sxy * abs(dy))
+        my = dy + e[:, 1] * (srr * abs(dy) + str_ * abs(dth) + sxy * abs(dx))
+        mth = dth + e[:, 2] * (stt * abs(dth) + srt * float(np.hypot(dx, dy)))
     else:
-        r1, tr, r2 = np.full(n, rot1), np.full(n, trans), np.full(n, rot2)
+        mx, my, mth = np.full(n, dx), np.full(n, dy), np.full(n, dth)
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
     out = np.empty_like(poses)
-    heading = poses[:, 2] + r1
-    out[:, 0] = poses[:, 0] + tr * np.cos(heading)
-    out[:, 1] = poses[:, 1] + tr * np.sin(heading)
-    out[:, 2] = wrap_angle(poses[:, 2] + r1 + r2)
+    out[:, 0] = poses[:, 0] + c * mx - s * my
+    out[:, 1] = poses[:, 1] + s * mx + c * my
+    out[:, 2] = wrap_angle(poses[:, 2] + mth)
     return out

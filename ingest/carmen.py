@@ -21,15 +21,33 @@ from .logdata import LogData, ScanGeometry
 from .textlog import IngestError
 
 CARMEN_NO_RETURN_M = 81.9
+"""Readings at or beyond this are no return (the SICK LMS reports 81.91 m or so when nothing is hit)."""
+SATURATION_MIN_REPEATS = 100
+"""A log's largest reading that recurs on at least this many beams is its laser's no-return value."""
 
 
-def carmen_geometry(beam_count: int) -> ScanGeometry:
+def no_return_range_m(ranges_m: np.ndarray) -> float:
+    """The range from which readings carry no return. CARMEN logs do not record it; the SICK lasers write
+    a fixed saturation value when nothing is hit (81.91 m on mit-csail, 81.83 m on intel). The log's
+    largest reading is that value when it recurs on many beams (a real far return is not repeated to the
+    centimetre): then it and everything above it is no return, as GMapping's ROS wrapper does with
+    `range_max - 0.01`. Otherwise the fixed CARMEN bound applies."""
+    finite = ranges_m[np.isfinite(ranges_m)]
+    if finite.size == 0:
+        return CARMEN_NO_RETURN_M
+    top = float(finite.max())
+    if top < CARMEN_NO_RETURN_M and int(np.count_nonzero(finite == top)) >= SATURATION_MIN_REPEATS:
+        return top
+    return CARMEN_NO_RETURN_M
+
+
+def carmen_geometry(beam_count: int, max_range_m: float = CARMEN_NO_RETURN_M) -> ScanGeometry:
     """Beam geometry from the beam count (see module docstring)."""
     if beam_count in (180, 360):
         step = math.pi / beam_count
     else:
         step = math.pi / max(beam_count - 1, 1)
-    return ScanGeometry(beam_count, -math.pi / 2, step, CARMEN_NO_RETURN_M)
+    return ScanGeometry(beam_count, -math.pi / 2, step, max_range_m)
 
 
 def _open_text(path: Path) -> str:
@@ -165,14 +183,15 @@ def read_carmen(path: Path, skip_bad_lines: bool = False) -> LogData:
     if back:
         warnings.append(f"{path}: {back} scans have non-increasing timestamps; file order kept")
     ranges_m = np.vstack(scans)
-    ranges_m[ranges_m >= CARMEN_NO_RETURN_M] = np.inf
+    no_return_m = no_return_range_m(ranges_m)
+    ranges_m[ranges_m >= no_return_m] = np.inf
     name = path.name.split(".")[0]
     log = LogData(
         dataset=name,
         source_format="carmen",
         source=str(path),
         motion_model="odometry",
-        geometry=carmen_geometry(int(beam_count)),
+        geometry=carmen_geometry(int(beam_count), no_return_m),
         scan_t_s=scan_t_s,
         scan_ranges_m=ranges_m,
         odom_pose=np.asarray(odom),

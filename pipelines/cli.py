@@ -245,6 +245,10 @@ def process(
     grid_cells: Annotated[
         int | None, typer.Option("--grid-cells", help="Cells of the grid baselines (default 3000 / 48000).")
     ] = None,
+    threads: Annotated[
+        int | None,
+        typer.Option("--threads", min=1, help="Threads of the filter's particle loops (default: all cores)."),
+    ] = None,
 ) -> None:
     """Run G-SLAM (or a baseline) over an input MCAP; write the result MCAP and a Rerun recording."""
     from gslam.config import FilterConfig
@@ -276,6 +280,8 @@ def process(
         run_opts["method"] = method
     if grid_cells is not None:
         run_opts["grid_cells"] = grid_cells
+    if threads is not None:
+        run_opts["threads"] = threads
     cfg = RunConfig(filter=FilterConfig.from_dict(filter_opts), **run_opts)
     from pipelines.runner import METHODS
 
@@ -371,45 +377,81 @@ def bench(
         "../shared/datasets/carpark"
     ),
     output: Annotated[
-        Path | None, typer.Option("-o", "--output", help="Markdown file (e.g. docs/BENCHMARKS.md).")
+        Path | None,
+        typer.Option(
+            "-o", "--output", help="Markdown file (e.g. docs/BENCHMARKS.md): the suite's section is rewritten."
+        ),
     ] = None,
+    suite: Annotated[
+        str,
+        typer.Option(
+            "--suite",
+            help="carpark: the paper's Tables 3 and 4; freiburg: relations error on the Freiburg indoor logs "
+            "(N 30, seeds 0..SEEDS-1); speed: whole-run wall time, ms per update and peak memory (median of 3).",
+        ),
+    ] = "carpark",
+    freiburg: Annotated[
+        Path, typer.Option("--freiburg", help="Directory with the Freiburg CARMEN logs (freiburg and speed suites).")
+    ] = Path("../shared/datasets/freiburg"),
+    threads: Annotated[str, typer.Option("--threads", help="speed suite: comma-separated thread counts.")] = "1,2",
 ) -> None:
-    """Reproduce the paper's Table 3 on the Car Park log, beside the paper's figures."""
+    """Benchmarks into docs/BENCHMARKS.md: the paper's Tables 3 and 4 on the Car Park log (beside the paper's
+    figures), the Freiburg indoor logs (beside GMapping), and speed."""
     import tempfile
     import time
 
-    from pipelines.bench import FULL_GRID, METHODS, QUICK_GRID, markdown_table, run_bench
+    from pipelines.bench import FULL_GRID, METHODS, QUICK_GRID, machine_description, markdown_table, run_bench, versions
+    from pipelines.bench_suites import freiburg_section, replace_section, run_suite, speed_section
 
-    chosen = [m.strip() for m in methods.split(",") if m.strip()]
-    if chosen == ["all"]:
-        chosen = list(METHODS)
-    missing = [m for m in chosen if m not in METHODS]
-    if missing:
-        raise ValueError(f"method(s) {', '.join(missing)} not available yet; available: {', '.join(METHODS)}")
-    n_seeds = seeds if seeds is not None else (1 if quick else 3)
-    if n_seeds < 1:
-        raise ValueError("--seeds must be at least 1")
-    grid = QUICK_GRID if quick else FULL_GRID
+    if suite not in ("carpark", "freiburg", "speed"):
+        raise ValueError(f"--suite must be carpark, freiburg or speed, got {suite!r}")
     command = invocation(ctx)
     t0 = time.perf_counter()
-    with tempfile.TemporaryDirectory(prefix="gslam-bench-in-") as tmp:
-        if data.is_dir():
-            from ingest import ingest as run_ingest
-
-            if not data.exists():
-                raise FileNotFoundError(f"{data}: no such directory")
-            input_mcap = Path(tmp) / "carpark.mcap"
-            run_ingest(data, input_mcap)
+    if suite != "carpark":
+        logs = [freiburg / "mit-csail.clf.gz", freiburg / "intel.clf.gz"]
+        for log in logs:
+            if not log.exists():
+                raise FileNotFoundError(f"{log}: Freiburg log not found (--freiburg DIR)")
+        echo = lambda s: typer.echo(s, err=True)  # noqa: E731
+        if suite == "freiburg":
+            n_seeds = seeds if seeds is not None else 5
+            runs = run_suite("freiburg", logs, [30], list(range(n_seeds)), [0], 1, echo)
+            text = freiburg_section(runs, command, machine_description(), versions())
         else:
-            input_mcap = data
-        results = run_bench(
-            input_mcap, grid, n_seeds, progress=lambda s: typer.echo(s, err=True), methods=tuple(chosen)
-        )
-    text = markdown_table(results, n_seeds, command, time.perf_counter() - t0)
+            if not data.is_dir() and not data.exists():
+                raise FileNotFoundError(f"{data}: Car Park log not found (--data)")
+            counts = [int(k) for k in threads.split(",") if k.strip()]
+            runs = []
+            for log, ns in ((data, [8, 30]), (logs[0], [30]), (logs[1], [30])):
+                runs += run_suite("speed", [log], ns, [0], counts, 3, echo)
+            text = speed_section(runs, command, machine_description(), versions(), 3)
+    else:
+        chosen = [m.strip() for m in methods.split(",") if m.strip()]
+        if chosen == ["all"]:
+            chosen = list(METHODS)
+        missing = [m for m in chosen if m not in METHODS]
+        if missing:
+            raise ValueError(f"method(s) {', '.join(missing)} not available yet; available: {', '.join(METHODS)}")
+        n_seeds = seeds if seeds is not None else (1 if quick else 3)
+        if n_seeds < 1:
+            raise ValueError("--seeds must be at least 1")
+        grid = QUICK_GRID if quick else FULL_GRID
+        with tempfile.TemporaryDirectory(prefix="gslam-bench-in-") as tmp:
+            if data.is_dir():
+                from ingest import ingest as run_ingest
+
+                input_mcap = Path(tmp) / "carpark.mcap"
+                run_ingest(data, input_mcap)
+            else:
+                input_mcap = data
+            results = run_bench(
+                input_mcap, grid, n_seeds, progress=lambda s: typer.echo(s, err=True), methods=tuple(chosen)
+            )
+        text = markdown_table(results, n_seeds, command, time.perf_counter() - t0)
     if output is not None:
         from pipelines.export import _atomic_write
 
-        _atomic_write(output, text)
+        _atomic_write(output, replace_section(output, suite, text))
         typer.echo(f"wrote {output}")
     else:
         typer.echo(text)

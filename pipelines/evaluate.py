@@ -82,6 +82,15 @@ def read_result(path: Path) -> ResultData:
     )
 
 
+def read_update_times(path: Path) -> list[float]:
+    """The filter's time (ms) of every step of a result that updated the maps, in log order."""
+    return [
+        float(msg.value["step_ms"])
+        for msg in McapInput(path).messages([ch.SLAM_STATS])
+        if msg.value.get("updated", True)
+    ]
+
+
 def _clean(v: Any) -> Any:
     if isinstance(v, float) and not math.isfinite(v):
         return None

@@ -37,6 +37,13 @@ class ProcessSummary:
         return self.log_duration_s / self.wall_s if self.wall_s > 0 else float("nan")
 
 
+def peak_rss_mb() -> float:
+    """This process's peak resident memory so far (MB; Linux reports ru_maxrss in kB)."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
 def _landmarks(log: InputLog) -> np.ndarray | None:
     msgs = log.read_all(ch.LANDMARKS_TRUTH)
     if not msgs:
@@ -137,6 +144,7 @@ def process(
         "log_duration_s": summary.log_duration_s,
         "real_time_factor": summary.real_time_factor,
         "final_map_points": summary.final_map_points,
+        "peak_rss_mb": peak_rss_mb(),
         "particles": cfg.filter.particles,
         "points_per_observation": cfg.filter.points_per_observation,
     }

@@ -64,6 +64,17 @@ def test_odometry_model_round_trip():
     np.testing.assert_allclose(out[0], cur, atol=1e-12)
 
 
+def test_odometry_noise_turning_on_the_spot_stays_proportional_to_the_turn():
+    # A turn of 0.3 rad with 1 mm of backwards slip: the heading noise is stt x 0.3 rad (+ srt x 1 mm), not
+    # a noise on an arbitrary "first rotation" of about pi, as the rot1-trans-rot2 model would give.
+    prev, cur = np.array([0.0, 0.0, 0.0]), np.array([-0.001, 0.0, 0.3])
+    delta = odometry_delta(prev, cur)
+    out = apply_odometry(np.zeros((4000, 3)), delta, np.random.default_rng(0), (0.1, 0.2, 0.1, 0.2))
+    assert out[:, 2].std() == pytest.approx(0.2 * 0.3 + 0.2 * 0.001, rel=0.1)
+    assert np.abs(out[:, 2] - 0.3).max() < 0.3  # never flipped round
+    assert out[:, 0].std() == pytest.approx(0.1 * 0.3 + 0.1 * 0.001, rel=0.1)
+
+
 def test_measurement_model_and_inverse():
     pose = np.array([1.0, 1.0, math.pi / 2])
     r, b = measure(pose, np.array([0.0, 1.0]))  # a point to the robot's left

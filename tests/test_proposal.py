@@ -5,10 +5,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from gslam.config import FilterConfig
-from gslam.pointmap import FlatMaps, PointMap, point_likelihood_ratio, project, smooth_by_cells
-from gslam.proposal import StackedMaps, match_scans
+from gslam.fieldmatch import MatchWorkspace, match_and_weigh
+from gslam.pointmap import FlatMaps, PointMap, point_likelihood_ratio, project
+from gslam.proposal import distinct_maps
 from gslam.scan import Scan, ScanGeometry, transform_points
 
 
@@ -37,64 +39,92 @@ def _scan_points(world: np.ndarray, pose: np.ndarray) -> np.ndarray:
     return local[local[:, 0] > 0.5][::7]
 
 
+def _match(maps, poses, pts, cfg=None, **over):
+    cfg = cfg or FilterConfig()
+    xy, p, lo, hi = distinct_maps(maps)
+    kw = dict(
+        cell_m=cfg.match_cell_m,
+        kernel=cfg.match_kernel,
+        min_p=cfg.match_min_p,
+        margin_m=cfg.match_window_margin_m,
+        step_xy_m=cfg.match_step_xy_m,
+        step_phi_rad=cfg.match_step_phi_rad,
+        levels=cfg.match_levels,
+        max_iterations=cfg.match_max_iterations,
+        score_sigma_m=cfg.match_sigma_m,
+        like_sigma_m=cfg.weight_sigma_m,
+        miss_m=cfg.weight_miss_m,
+        workspace=MatchWorkspace(over.pop("workers", 1)),
+    )
+    kw.update(over)
+    return match_and_weigh(xy, p, lo, hi, np.asarray(poses, dtype=float), pts, **kw)
+
+
 def test_match_recovers_a_known_pose_offset_for_every_particle():
     rng = np.random.default_rng(0)
     world = _room(rng)
-    m = PointMap(world[np.argsort(world[:, 0])], np.full(len(world), 0.9))
+    m = PointMap(world, np.full(len(world), 0.9))
     truth = np.array([1.0, 0.5, 0.2])
     pts = _scan_points(world, truth)
     assert len(pts) > 100
-    start = truth + np.array([[0.15, -0.10, math.radians(1.5)], [-0.12, 0.08, math.radians(-1.0)], [0.0, 0.0, 0.0]])
+    start = truth + np.array([[0.08, -0.06, math.radians(1.5)], [-0.07, 0.05, math.radians(-1.0)], [0.0, 0.0, 0.0]])
     maps = [m, m, PointMap.empty()]  # particles 0 and 1 share one map; particle 2 has none
-    out, matched, score = match_scans(maps, start, pts, FilterConfig(match_levels=6))
-    assert matched.tolist() == [True, True, False]
+    out, score, log_like, hits = _match(maps, start, pts)
     for i in (0, 1):
-        assert np.hypot(*(out[i, :2] - truth[:2])) < 0.02, out[i]
+        assert np.hypot(*(out[i, :2] - truth[:2])) < 0.02, out[i]  # the room has 1 cm of scatter
         assert abs(out[i, 2] - truth[2]) < math.radians(0.2)
-        # Smoothing leaves one point per 0.25 m cell and shrinks the 0.1 m poles to their centres.
-        assert score[i] > 0.6 * len(pts)
+        assert hits[i] > 0.9 * len(pts) and score[i] > 0.8 * len(pts)
     np.testing.assert_array_equal(out[2], start[2])  # no map: the motion sample stands
+    assert hits[2] == 0 and score[2] == 0
+    # Every return misses on an empty map: the log-likelihood is the miss value for each of them.
+    cfg = FilterConfig()
+    assert log_like[2] == pytest.approx(-len(pts) * cfg.weight_miss_m**2 / (2 * cfg.weight_sigma_m**2))
+    assert log_like[0] > 0.1 * log_like[2]
 
 
-def test_smoothing_puts_scattered_points_on_the_surface_centre_line():
-    rng = np.random.default_rng(2)
-    x = rng.uniform(0, 10, 2000)
-    y = 3.0 + rng.standard_normal(2000) * 0.05  # a wall at y = 3 with 5 cm of scatter
-    owner = np.zeros(2000, dtype=np.int64)
-    out = smooth_by_cells(owner, np.column_stack([x, y]), 0.25)
-    assert np.abs(out[:, 1] - 3.0).max() < 0.05 and np.abs(y - 3.0).max() > 0.1
-    assert np.abs(out[:, 0] - x).max() < 0.3  # along the wall, points stay in their neighbourhood
-    # Another particle's points never mix in.
-    two = smooth_by_cells(
-        np.r_[owner, owner + 1], np.vstack([np.column_stack([x, y]), np.column_stack([x, y + 0.2])]), 0.25
-    )
-    np.testing.assert_allclose(two[:2000], out)
+def test_match_result_does_not_depend_on_the_number_of_workers():
+    rng = np.random.default_rng(3)
+    world = _room(rng)
+    maps = [PointMap(world + rng.standard_normal(world.shape) * 0.01, np.full(len(world), 0.9)) for _ in range(5)]
+    truth = np.array([0.5, -0.5, 0.1])
+    pts = _scan_points(world, truth)
+    start = truth + rng.standard_normal((5, 3)) * [0.05, 0.05, 0.02]
+    one = _match(maps, start, pts, workers=1)
+    two = _match(maps, start, pts, workers=2)
+    for a, b in zip(one, two, strict=True):
+        np.testing.assert_array_equal(a, b)
 
 
-def test_stacked_maps_share_a_slot_per_distinct_map():
-    a = PointMap(np.zeros((30, 2)), np.ones(30))
-    b = PointMap(np.ones((25, 2)), np.ones(25))
-    stacked = StackedMaps.of([a, b, a, b, b])
-    assert stacked.slot.tolist() == [0, 1, 0, 1, 1]
-    assert stacked.sizes.tolist() == [30, 25, 30, 25, 25]
-    assert stacked.tree.n == 55
-    # Windows: particle 0 and 2 (map a, at the origin) look far away; the union of 1, 3, 4 holds map b.
-    far, near = [50.0, 50.0, 60.0, 60.0], [0.5, 0.5, 1.5, 1.5]
-    windowed = StackedMaps.of([a, b, a, b, b], windows=np.array([far, near, far, far, far]))
-    assert windowed.sizes.tolist() == [0, 25, 0, 25, 25]
-    assert windowed.tree.n == 25
-
-
-def test_match_score_peaks_at_the_truth():
+def test_match_score_peaks_at_the_truth_and_likelihood_falls_off_it():
     rng = np.random.default_rng(1)
     world = _room(rng)
     m = PointMap(world, np.full(len(world), 0.9))
     truth = np.array([0.0, 0.0, 0.0])
     pts = _scan_points(world, truth)
-    stacked = StackedMaps.of([m])
     offsets = np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0, 0, math.radians(1)]], dtype=float)
-    s = stacked.scores(np.zeros(4, dtype=np.int64), truth + offsets, pts, 0.1)
+    _, s, like, _ = _match([m] * 4, truth + offsets, pts, max_iterations=0)  # no climbing: the pose's score
     assert s.argmax() == 0 and s[0] > 0.9 * len(pts)
+    assert like.argmax() == 0
+    # Points below match_min_p are not part of the map the matcher sees.
+    faint = PointMap(world, np.full(len(world), 0.4))
+    _, s, _, hits = _match([faint], truth[None], pts, max_iterations=0)
+    assert s[0] == 0 and hits[0] == 0
+
+
+def test_a_wall_is_not_matched_from_behind_a_parallel_wall():
+    # Two parallel walls one matcher cell (0.05 m) apart; returns seen from below fall on the near one. A
+    # cell whose neighbour towards the sensor is occupied is not a surface seen from this side, so the pose
+    # that puts the returns on the far wall scores nothing (kernel 0: only the end point's own cell).
+    x = np.arange(-3, 3, 0.05)
+    near = np.column_stack([x, np.full_like(x, 2.0)])
+    far = np.column_stack([x, np.full_like(x, 2.05)])
+    m = PointMap(np.vstack([near, far]), np.full(2 * len(x), 0.9))
+    pts = np.column_stack([np.full(21, 2.0), np.linspace(-1, 1, 21)])  # sensor frame: x ahead, wall at 2 m
+    up = np.pi / 2  # heading +y
+    poses = np.array([[0.0, 0.0, up], [0.0, 0.05, up]])
+    _, s, _, _ = _match([m, m], poses, pts, max_iterations=0, kernel=0)
+    assert s[0] > 0.9 * len(pts)
+    assert s[1] < 0.1 * len(pts)
 
 
 def test_free_space_guard_spares_points_beside_a_nearer_return():
@@ -121,8 +151,6 @@ def test_free_space_guard_spares_points_beside_a_nearer_return():
 
 
 def test_matcher_options_are_validated():
-    import pytest
-
     with pytest.raises(ValueError, match="match_levels"):
         FilterConfig(match_levels=0)
     with pytest.raises(ValueError, match="match_sigma_m"):

@@ -1,0 +1,335 @@
+"""Steps 2 to 4 of the algorithm for every particle, compiled and local to the scan.
+
+For the default reading of the open points (per-point Bayes in log-odds, M new points around every
+return, the cell-mean prior, pruning at an absolute threshold and at most `max_points_per_cell` points
+per cell) this does what `gslam.pointmap` does with numpy over whole maps, but each particle only
+touches the points inside a window around the scan: the box of its pose and its returns' end points,
+grown by a margin. Points outside the window are copied unchanged (neither observed as free nor hit),
+so the work per update depends on the scan, not on the size of the map.
+
+Per particle i (independent, so spread over threads with numba prange; the random draws are made
+beforehand from the filter's seeded Generator, so the result does not depend on the thread count):
+
+1. Every map point in the window is projected on its beam (eq. meas1) and gets q (eq. 6): a Gaussian
+   bump around the return over `free_ratio` in front of it, 1 behind it or out of view; its p is
+   updated in log-odds (eq. 7, binary semantic): logit p += log q.
+2. M new points are drawn around every return, z_hat ~ N(z, R), mapped through the inverse of g; their
+   prior is the mean p of the particle's points in the same cell (before this update; `prior_p0` where
+   the cell is empty), updated with their own q.
+3. Points with p < `prune_threshold` are dropped, and in each cell only the `max_points_per_cell` most
+   probable stay (density control).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+_EMPTY = -1
+
+
+@njit(cache=True, inline="always")
+def _q(d, hit_sigma, hit_ratio, free_ratio):
+    """q (eq. 6) of a point `d` metres beyond the return of its beam (negative: in front of it)."""
+    g = math.exp(-0.5 * (d / hit_sigma) ** 2)
+    if d > 0.0:
+        return 1.0 + (hit_ratio - 1.0) * g
+    return free_ratio + (hit_ratio - free_ratio) * g
+
+
+@njit(cache=True, inline="always")
+def _logit_update(p, q):
+    logit = math.log(p) - math.log1p(-p) + math.log(q)
+    v = 1.0 / (1.0 + math.exp(-logit))
+    return min(max(v, 1e-6), 1.0 - 1e-6)
+
+
+@njit(cache=True)
+def _update_one(
+    lo,
+    hi,
+    map_xy,
+    map_p,
+    pose,
+    ranges,
+    ret_idx,
+    start_rad,
+    inc_rad,
+    max_range,
+    noise,
+    sens,
+    params,
+    cell_count,
+    cell_sum,
+    cell_top,
+    touched,
+    out_xy,
+    out_p,
+    out_lo,
+):
+    """Writes particle's new map into out_xy/out_p from out_lo; returns the number of points written."""
+    hit_sigma, hit_ratio, free_ratio, prune, cell_m, prior_p0, margin = (
+        params[0],
+        params[1],
+        params[2],
+        params[3],
+        params[4],
+        params[5],
+        params[6],
+    )
+    keep_per_cell = int(params[7])
+    beams = ranges.shape[0]
+    px, py, ph = pose[0], pose[1], pose[2]
+    # The window: pose and end points of the returns, grown by the margin.
+    x0, y0, x1, y1 = px, py, px, py
+    for k in range(ret_idx.shape[0]):
+        j = ret_idx[k]
+        b = start_rad + inc_rad * j
+        ex = px + ranges[j] * math.cos(ph + b)
+        ey = py + ranges[j] * math.sin(ph + b)
+        x0, y0, x1, y1 = min(x0, ex), min(y0, ey), max(x1, ex), max(y1, ey)
+    x0 = math.floor((x0 - margin) / cell_m) * cell_m  # aligned with the global grid of cells
+    y0 = math.floor((y0 - margin) / cell_m) * cell_m
+    x1 += margin
+    y1 += margin
+    ny = int(math.floor((y1 - y0) / cell_m)) + 1
+    # 1. Outside points are copied; window points are updated and go to a candidate list.
+    n_out = out_lo
+    cand_start = out_lo + (hi - lo)  # candidates are staged after the copied points' worst case
+    n_cand = 0
+    used = 0
+    for k in range(lo, hi):
+        x, y = map_xy[k, 0], map_xy[k, 1]
+        if x < x0 or x >= x1 or y < y0 or y >= y1:
+            out_xy[n_out, 0] = x
+            out_xy[n_out, 1] = y
+            out_p[n_out] = map_p[k]
+            n_out += 1
+            continue
+        p = map_p[k]
+        g = int(math.floor((x - x0) / cell_m)) * ny + int(math.floor((y - y0) / cell_m))
+        if cell_count[g] == 0:
+            touched[used] = g
+            used += 1
+            cell_sum[g] = 0.0
+        cell_count[g] += 1
+        cell_sum[g] += p  # the prior of new points: p before this update
+        dx, dy = x - px, y - py
+        r = math.sqrt(dx * dx + dy * dy)
+        bearing = math.atan2(dy, dx) - ph
+        bearing = (bearing + math.pi) % (2.0 * math.pi) - math.pi
+        j = int(math.floor((bearing - start_rad) / inc_rad + 0.5))
+        if 0 <= j < beams and r < max_range:
+            p = _logit_update(p, _q(r - ranges[j], hit_sigma, hit_ratio, free_ratio))
+        out_xy[cand_start + n_cand, 0] = x
+        out_xy[cand_start + n_cand, 1] = y
+        out_p[cand_start + n_cand] = p
+        n_cand += 1
+    # 2. New points around every return.
+    m = noise.shape[1]
+    for k in range(ret_idx.shape[0]):
+        j = ret_idx[k]
+        b = start_rad + inc_rad * j
+        for t in range(m):
+            z_hat = ranges[j] + noise[k, t, 0] * sens[0]
+            b_hat = b + noise[k, t, 1] * sens[1]
+            x = px + z_hat * math.cos(ph + b_hat)
+            y = py + z_hat * math.sin(ph + b_hat)
+            if x < x0 or x >= x1 or y < y0 or y >= y1:
+                continue
+            g = int(math.floor((x - x0) / cell_m)) * ny + int(math.floor((y - y0) / cell_m))
+            prior = cell_sum[g] / cell_count[g] if cell_count[g] > 0 else prior_p0
+            p = _logit_update(prior, _q(z_hat - ranges[j], hit_sigma, hit_ratio, free_ratio))
+            out_xy[cand_start + n_cand, 0] = x
+            out_xy[cand_start + n_cand, 1] = y
+            out_p[cand_start + n_cand] = p
+            n_cand += 1
+    for u in range(used):
+        cell_count[touched[u]] = 0
+    # 3. Prune, then keep the most probable points of every cell.
+    used = 0
+    for k in range(cand_start, cand_start + n_cand):
+        p = out_p[k]
+        if p < prune:
+            continue
+        x, y = out_xy[k, 0], out_xy[k, 1]
+        g = int(math.floor((x - x0) / cell_m)) * ny + int(math.floor((y - y0) / cell_m))
+        if cell_count[g] == 0:
+            touched[used] = g
+            used += 1
+        n = cell_count[g]
+        if n < keep_per_cell:
+            cell_top[g, n] = k
+            cell_count[g] = n + 1
+        else:  # replace the least probable kept point if this one is more probable
+            worst = 0
+            for e in range(1, keep_per_cell):
+                if out_p[cell_top[g, e]] < out_p[cell_top[g, worst]]:
+                    worst = e
+            if p > out_p[cell_top[g, worst]]:
+                cell_top[g, worst] = k
+    for u in range(used):  # mark the kept points (p + 2), then compact them forwards after the copied ones
+        g = touched[u]
+        for e in range(cell_count[g]):
+            out_p[cell_top[g, e]] += 2.0
+        cell_count[g] = 0
+    for k in range(cand_start, cand_start + n_cand):
+        if out_p[k] >= 2.0:
+            out_xy[n_out, 0] = out_xy[k, 0]
+            out_xy[n_out, 1] = out_xy[k, 1]
+            out_p[n_out] = out_p[k] - 2.0
+            n_out += 1
+    return n_out - out_lo
+
+
+@njit(cache=True, parallel=True)
+def _update_all(
+    map_xy,
+    map_p,
+    lo,
+    hi,
+    poses,
+    ranges,
+    ret_idx,
+    start_rad,
+    inc_rad,
+    max_range,
+    noise,
+    sens,
+    params,
+    cell_count,
+    cell_sum,
+    cell_top,
+    touched,
+    out_lo,
+):
+    n = poses.shape[0]
+    workers = cell_count.shape[0]
+    total = out_lo[n]
+    out_xy = np.empty((total, 2))
+    out_p = np.empty(total)
+    counts = np.zeros(n, dtype=np.int64)
+    for w in prange(workers):
+        for i in range(w, n, workers):
+            counts[i] = _update_one(
+                lo[i],
+                hi[i],
+                map_xy,
+                map_p,
+                poses[i],
+                ranges,
+                ret_idx,
+                start_rad,
+                inc_rad,
+                max_range,
+                noise[i],
+                sens,
+                params,
+                cell_count[w],
+                cell_sum[w],
+                cell_top[w],
+                touched[w],
+                out_xy,
+                out_p,
+                out_lo[i],
+            )
+    return out_xy, out_p, counts
+
+
+class UpdateWorkspace:
+    """Per-worker cell arrays of the window (reset after each particle), grown on demand."""
+
+    def __init__(self, workers: int, keep_per_cell: int) -> None:
+        self.workers = max(1, int(workers))
+        self.keep = max(1, keep_per_cell)
+        self._alloc(0, 0)
+
+    def _alloc(self, cells: int, points: int) -> None:
+        self.cell_count = np.zeros((self.workers, cells), dtype=np.int64)
+        self.cell_sum = np.zeros((self.workers, cells))
+        self.cell_top = np.zeros((self.workers, cells, self.keep), dtype=np.int64)
+        self.touched = np.zeros((self.workers, points), dtype=np.int64)
+
+    def reserve(self, cells: int, points: int) -> None:
+        if cells > self.cell_count.shape[1] or points > self.touched.shape[1]:
+            self._alloc(max(int(cells * 1.25) + 1, self.cell_count.shape[1]), max(points * 2, self.touched.shape[1]))
+
+
+def update_maps(
+    map_xy: np.ndarray,
+    map_p: np.ndarray,
+    map_lo: np.ndarray,
+    map_hi: np.ndarray,
+    poses: np.ndarray,
+    ranges_m: np.ndarray,
+    returns: np.ndarray,
+    start_angle_rad: float,
+    angle_increment_rad: float,
+    max_range_m: float,
+    noise: np.ndarray,
+    *,
+    range_sigma_m: float,
+    bearing_sigma_rad: float,
+    hit_sigma_m: float,
+    hit_ratio: float,
+    free_ratio: float,
+    prune_threshold: float,
+    cell_size_m: float,
+    prior_p0: float,
+    max_points_per_cell: int,
+    workspace: UpdateWorkspace,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Steps 2 to 4 for every particle (see the module docstring).
+
+    `ranges_m` (B,) are the occlusion ranges of the scan (the maximum range where a beam saw nothing),
+    `returns` (B,) the beams that returned an observation; `noise` (N, R, M, 2) standard normal draws
+    for the M new points around each of the R returns (range, bearing). Returns (xy, p, start) of the
+    new maps: particle i's map is xy[start[i]:start[i] + count], count = start[i+1]... as split by
+    `split_maps`.
+    """
+    n = len(poses)
+    ret_idx = np.flatnonzero(returns).astype(np.int64)
+    sizes = np.asarray(map_hi - map_lo, dtype=np.int64)
+    new = len(ret_idx) * noise.shape[2]
+    # Particle i writes its copied points and, after them, its candidates: 2 x its map + its new points.
+    out_lo = np.concatenate([[0], np.cumsum(2 * sizes + new)]).astype(np.int64)
+    # The window is the box of the returns plus a margin: its cells bound the raster.
+    rng = ranges_m[ret_idx] if len(ret_idx) else np.zeros(1)
+    span = 2 * (float(rng.max()) + hit_sigma_m * 3) + cell_size_m
+    cells = int((span / cell_size_m + 2) ** 2)
+    workspace.reserve(cells, int(sizes.max() if n else 0) + new)
+    params = np.array(
+        [
+            hit_sigma_m,
+            hit_ratio,
+            free_ratio,
+            prune_threshold,
+            cell_size_m,
+            prior_p0,
+            3 * hit_sigma_m,
+            max_points_per_cell,
+        ]
+    )
+    out_xy, out_p, counts = _update_all(
+        np.ascontiguousarray(map_xy, dtype=float),
+        np.ascontiguousarray(map_p, dtype=float),
+        np.asarray(map_lo, dtype=np.int64),
+        np.asarray(map_hi, dtype=np.int64),
+        np.ascontiguousarray(poses, dtype=float),
+        np.ascontiguousarray(ranges_m, dtype=float),
+        ret_idx,
+        float(start_angle_rad),
+        float(angle_increment_rad),
+        float(max_range_m),
+        np.ascontiguousarray(noise, dtype=float),
+        np.array([range_sigma_m, bearing_sigma_rad]),
+        params,
+        workspace.cell_count,
+        workspace.cell_sum,
+        workspace.cell_top,
+        workspace.touched,
+        out_lo,
+    )
+    return out_xy, out_p, np.column_stack([out_lo[:-1], out_lo[:-1] + counts])

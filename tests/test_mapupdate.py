@@ -1,0 +1,114 @@
+"""Steps 2 to 4 compiled and local to the scan (`gslam.mapupdate`), on constructed scans and the simulated world."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from gslam.config import FilterConfig
+from gslam.filter import GSlamFilter
+from gslam.mapupdate import UpdateWorkspace, update_maps
+from gslam.scan import Scan, ScanGeometry
+
+
+def _update(xy, p, pose, scan, cfg, noise=None, workers=1):
+    n_ret = int(scan.returns.sum())
+    if noise is None:
+        noise = np.zeros((1, n_ret, cfg.points_per_observation, 2))
+    g = scan.geometry
+    return update_maps(
+        np.asarray(xy, dtype=float),
+        np.asarray(p, dtype=float),
+        np.array([0]),
+        np.array([len(p)]),
+        np.asarray(pose, dtype=float)[None],
+        scan.occlusion_ranges_m,
+        scan.returns,
+        g.start_angle_rad,
+        g.angle_increment_rad,
+        g.max_range_m,
+        noise,
+        range_sigma_m=cfg.range_sigma_m,
+        bearing_sigma_rad=cfg.bearing_sigma_rad,
+        hit_sigma_m=cfg.hit_sigma_m,
+        hit_ratio=cfg.hit_ratio,
+        free_ratio=cfg.free_ratio,
+        prune_threshold=cfg.prune_threshold,
+        cell_size_m=cfg.cell_size_m,
+        prior_p0=cfg.prior_p0,
+        max_points_per_cell=cfg.max_points_per_cell,
+        workspace=UpdateWorkspace(workers, cfg.max_points_per_cell),
+    )
+
+
+def test_points_in_front_of_a_return_lose_probability_and_points_away_from_the_scan_are_untouched():
+    # Three beams looking along +x, all returning at 5 m. A point at 2 m is in observed free space, one at
+    # 5 m is hit, one far away (50, 50) is outside the scan's window and must come back unchanged.
+    geom = ScanGeometry(3, -0.01, 0.01, 80.0)
+    scan = Scan(0.0, np.array([5.0, 5.0, 5.0]), geom)
+    cfg = FilterConfig(points_per_observation=1, max_points_per_cell=1, cell_size_m=0.1)
+    xy = np.array([[2.0, 0.0], [5.0, 0.0], [50.0, 50.0]])
+    p = np.array([0.6, 0.6, 0.42])
+    out_xy, out_p, bounds = _update(xy, p, np.zeros(3), scan, cfg)
+    a, b = bounds[0]
+    got = {tuple(np.round(x, 6)): q for x, q in zip(out_xy[a:b], out_p[a:b], strict=True)}
+    assert got[(50.0, 50.0)] == 0.42  # outside the window: copied as it was
+    free = got.get((2.0, 0.0))
+    assert free is not None and free < 0.6  # q = free_ratio < 1 in front of the return
+    # The hit point's p rises (q = hit_ratio: 0.6 -> 0.818), and it stays as the most probable of its cell.
+    assert got[(5.0, 0.0)] == pytest.approx(1 / (1 + (0.4 / 0.6) / cfg.hit_ratio))
+    cells = np.floor(out_xy[a:b] / cfg.cell_size_m).astype(int)
+    assert np.unique(cells, axis=0).shape[0] == b - a  # at most one point per cell
+
+
+def test_new_points_are_drawn_around_returns_and_thinned_per_cell():
+    geom = ScanGeometry(181, -math.pi / 2, math.pi / 180, 80.0)
+    ranges = np.full(181, 4.0)
+    scan = Scan(0.0, ranges, geom)
+    cfg = FilterConfig(points_per_observation=10, max_points_per_cell=2, cell_size_m=0.25)
+    rng = np.random.default_rng(0)
+    noise = rng.standard_normal((1, 181, 10, 2))
+    out_xy, out_p, bounds = _update(np.empty((0, 2)), np.empty(0), np.zeros(3), scan, cfg, noise)
+    a, b = bounds[0]
+    xy, p = out_xy[a:b], out_p[a:b]
+    r = np.hypot(xy[:, 0], xy[:, 1])
+    assert np.abs(r - 4.0).max() < 5 * cfg.range_sigma_m + 0.01  # on the circle of returns
+    assert (p >= cfg.prune_threshold).all() and (p > cfg.prior_p0).all()  # new points at a return are hits
+    cells = np.floor(xy / cfg.cell_size_m).astype(int)
+    _, counts = np.unique(cells, axis=0, return_counts=True)
+    assert counts.max() <= 2 and len(xy) > 100
+
+
+def test_filter_results_do_not_depend_on_the_thread_count():
+    from gslam.motion import integrate_ackermann
+    from gslam.sim import carpark_world, simulate_loop
+    from gslam.vehicle import VEHICLE_PRESETS
+
+    car = VEHICLE_PRESETS["carpark"]
+    rng = np.random.default_rng(5)
+    sim = simulate_loop(carpark_world(rng), car, rng, duration_s=8.0)
+    geom = ScanGeometry(361, -math.pi / 2, math.pi / 360, 80.0)
+    runs = []
+    for threads in (1, 2):
+        cfg = FilterConfig(particles=6, seed=1, min_travel_m=0.3)
+        flt = GSlamFilter(cfg, sim.truth[0, 1:], threads=threads)
+        t_prev = sim.scan_t[0]
+        for k in range(1, len(sim.scan_t)):
+            t = sim.scan_t[k]
+            lo = np.searchsorted(sim.controls[:, 0], t_prev, side="right") - 1
+            hi = np.searchsorted(sim.controls[:, 0], t, side="left")
+
+            def predict(poses, g, u=sim.controls[lo:hi], t0=t_prev, t1=t, c=cfg):
+                return integrate_ackermann(
+                    poses, u, t1, t0, car, g, c.speed_sigma_mps, c.speed_sigma_rel, c.steering_sigma_rad
+                )
+
+            flt.step(Scan(t, sim.ranges[k], geom), predict)
+            t_prev = t
+        assert flt.compiled_update
+        runs.append((flt.best_trajectory()[1], [m.p.copy() for m in flt.maps]))
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    for a, b in zip(runs[0][1], runs[1][1], strict=True):
+        np.testing.assert_array_equal(a, b)
