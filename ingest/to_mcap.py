@@ -10,8 +10,8 @@ import numpy as np
 
 from gslam import __version__
 from gslam.vehicle import vehicle_preset
-from pipelines import channels as ch
-from pipelines.mcapio import AtomicMcapWriter
+from mcaplog import channels as ch
+from mcaplog.mcapio import AtomicMcapWriter
 
 from .logdata import LogData
 from .textlog import monotone_log_times_ns

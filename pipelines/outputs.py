@@ -11,9 +11,9 @@ import numpy as np
 
 from gslam.filter import SlamFilter
 from gslam.scan import ScanGeometry, transform_points
+from mcaplog import channels as ch
+from mcaplog.mcapio import AtomicMcapWriter, to_ns
 
-from . import channels as ch
-from .mcapio import AtomicMcapWriter, to_ns
 from .runner import Step
 
 

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from gslam import __version__
+from mcaplog import channels as ch
 
-from . import channels as ch
 from .outputs import McapResultWriter, RerunResultWriter
 from .runner import RunConfig, SlamRunner
 from .source import InputLog

@@ -10,10 +10,10 @@ from typing import Any
 import numpy as np
 
 from gslam.scan import ScanGeometry
+from mcaplog import channels as ch
+from mcaplog.mcapio import McapInput
 
-from . import channels as ch
 from .errors import InputError
-from .mcapio import McapInput
 
 
 @dataclass
