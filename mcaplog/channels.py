@@ -53,7 +53,7 @@ ACKERMANN_SCHEMA: dict[str, Any] = {
 
 ODOM_POSE_SCHEMA: dict[str, Any] = {
     "title": "gslam.OdometryPose",
-    "description": "Integrated wheel odometry pose in the odometry frame (CARMEN ODOM, or FLASER odom).",
+    "description": "Integrated odometry pose, odometry frame (CARMEN ODOM or FLASER odom; ROS bags: base at scan).",
     "type": "object",
     "properties": {
         "t_s": {"type": "number", "description": "time stamp from the log [s] (may go backwards)"},
@@ -62,7 +62,7 @@ ODOM_POSE_SCHEMA: dict[str, Any] = {
         "theta_rad": {"type": "number"},
         "tv_mps": {"type": ["number", "null"], "description": "translational velocity, if logged"},
         "rv_radps": {"type": ["number", "null"], "description": "rotational velocity, if logged"},
-        "source": {"type": "string", "description": "ODOM or FLASER"},
+        "source": {"type": "string", "description": "ODOM or FLASER (CARMEN), interpolated (ROS bags)"},
     },
     "required": ["t_s", "x_m", "y_m", "theta_rad"],
 }
