@@ -112,7 +112,6 @@ class BagStream:
         self.options = options
         self.dataset = options.dataset or (self.path.stem if self.path.is_file() else self.path.name)
         self.warnings: list[str] = []
-        self.written_scans = 0
         reader = _open_reader(self.path)
         try:
             self.storage = self._storage(reader)
@@ -318,7 +317,7 @@ class BagStream:
                 "name": self.dataset,
                 "source_format": self.source_format,
                 "source": str(self.path),
-                "counts": {"scans": self.scan.count, "scans_written": self.written_scans},
+                "counts": {"scans": self.scan.count},
             },
             "bag": {
                 "storage": self.storage,
@@ -416,7 +415,6 @@ class BagStream:
         t_s = odom.t_ns / NS
         yield ns, OdomRecord(t_s, odom.x_m, odom.y_m, odom.theta_rad, odom.tv_mps, odom.rv_radps, "interpolated")
         yield ns + 1, scan
-        self.written_scans += 1
         return ns + 1
 
     def _report(self, aligner: ScanOdometryAligner, span: tuple[int, int] | None) -> None:
