@@ -1,4 +1,10 @@
-"""Ingest: outside log formats (Sydney text and MATLAB logs, CARMEN logs) to MCAP."""
+"""Ingest: outside log formats to MCAP. One reader module per format, behind one interface
+(`ingest.base.LogReader`), chosen by what the input is:
+
+- `ingest.sydney`: the ACFR Car Park and Victoria Park logs (text and MATLAB);
+- `ingest.carmen`: CARMEN logs (the Freiburg intel and mit-csail logs);
+- `ingest.rosbag`: ROS 1 bags and ROS 2 bags (sqlite3 and MCAP storage).
+"""
 
 from __future__ import annotations
 
@@ -6,73 +12,87 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from .carmen import read_carmen
+from .base import LogReader, LogStream, ReadOptions
+from .carmen import CarmenReader
 from .logdata import LogData, ScanGeometry
-from .sydney import CARPARK_MAT, VICTORIA_DR_MAT, read_sydney_mat, read_sydney_text
+from .rosbag import RosbagReader
+from .sydney import SydneyReader
 from .textlog import IngestError
 
-FORMATS = ("auto", "sydney-text", "sydney-mat", "carmen")
+READERS: tuple[LogReader, ...] = (SydneyReader(), CarmenReader(), RosbagReader())
+FORMATS = ("auto", *(f for r in READERS for f in r.formats))
 
-__all__ = ["FORMATS", "IngestError", "IngestReport", "LogData", "ScanGeometry", "detect_format", "ingest", "read_log"]
+__all__ = [
+    "FORMATS",
+    "READERS",
+    "IngestError",
+    "IngestReport",
+    "LogData",
+    "LogStream",
+    "ReadOptions",
+    "ScanGeometry",
+    "detect_format",
+    "ingest",
+    "open_log",
+    "read_log",
+]
 
 
 def detect_format(source: Path) -> str:
-    """The format of `source` (a directory or a file), from the names it holds."""
+    """The format of `source` (a directory or a file): the first reader that claims it."""
     source = Path(source)
     if not source.exists():
         raise IngestError(f"{source}: no such file or directory")
+    for reader in READERS:
+        fmt = reader.detect(source)
+        if fmt is not None:
+            return fmt
     if source.is_file():
-        name = source.name.lower()
-        if name.endswith((".clf", ".log", ".clf.gz", ".log.gz", ".gz")):
-            return "carmen"
-        if name.endswith(".mat"):
-            return "sydney-mat"
-        if name.endswith(".txt"):
-            return "sydney-text"
         raise IngestError(f"{source}: cannot tell the format from the name (use --format)")
-    names = {p.name for p in source.iterdir()}
-    if CARPARK_MAT in names or VICTORIA_DR_MAT in names:
-        return "sydney-mat"
-    if "DRS.txt" in names:
-        return "sydney-text"
-    if "text" in names and (source / "text" / "DRS.txt").exists():
-        return "sydney-text"
-    logs = [n for n in names if n.endswith((".clf", ".clf.gz", ".log", ".log.gz"))]
-    if len(logs) == 1:
-        return "carmen"
     raise IngestError(
-        f"{source}: no known log found (expected DRS.txt, {CARPARK_MAT}, {VICTORIA_DR_MAT} or one CARMEN .clf/.log)"
+        f"{source}: no known log found (expected DRS.txt, data_set.mat, aa3_dr.mat, one CARMEN .clf/.log, "
+        "or a ROS 2 bag's metadata.yaml)"
     )
 
 
-def read_log(source: Path, fmt: str = "auto", dataset: str | None = None, skip_bad_lines: bool = False) -> LogData:
-    """Read a log into memory (`LogData`), detecting the format when `fmt` is "auto"."""
+def _reader_for(fmt: str) -> LogReader:
+    for reader in READERS:
+        if fmt in reader.formats:
+            return reader
+    raise IngestError(f"unknown format {fmt!r}; choose one of {', '.join(FORMATS)}")
+
+
+def open_log(source: Path, fmt: str = "auto", options: ReadOptions | None = None) -> LogStream:
+    """Open a log of any known format as a `LogStream`, detecting the format when `fmt` is "auto"."""
     source = Path(source)
+    options = options or ReadOptions()
     if fmt not in FORMATS:
         raise IngestError(f"unknown format {fmt!r}; choose one of {', '.join(FORMATS)}")
     if fmt == "auto":
         fmt = detect_format(source)
-    if fmt == "carmen":
-        if source.is_dir():
-            logs = sorted(p for p in source.iterdir() if p.name.endswith((".clf", ".clf.gz", ".log", ".log.gz")))
-            if len(logs) != 1:
-                raise IngestError(f"{source}: expected one CARMEN log in the directory, found {len(logs)}")
-            source = logs[0]
-        log = read_carmen(source, skip_bad_lines)
-    else:
-        directory = source if source.is_dir() else source.parent
-        if fmt == "sydney-text" and not (directory / "DRS.txt").exists() and (directory / "text").is_dir():
-            directory = directory / "text"
-        reader = read_sydney_text if fmt == "sydney-text" else read_sydney_mat
-        log = reader(directory, skip_bad_lines)
-    if dataset:
-        log.dataset = dataset
-    return log
+    elif not source.exists():
+        raise IngestError(f"{source}: no such file or directory")
+    given = [name for name in ReadOptions.BAG_OPTIONS if getattr(options, name) is not None]
+    if given and fmt != "rosbag":
+        flags = ", ".join("--" + name.replace("_", "-") for name in given)
+        raise IngestError(f"{source}: {flags} apply to ROS bags only; this is a {fmt} log")
+    stream = _reader_for(fmt).open(source, fmt, options)
+    if options.dataset:
+        stream.dataset = options.dataset
+    return stream
+
+
+def read_log(source: Path, fmt: str = "auto", dataset: str | None = None, skip_bad_lines: bool = False) -> LogData:
+    """Read a Sydney or CARMEN log into memory (`LogData`). ROS bags stream instead: use `open_log`."""
+    stream = open_log(source, fmt, ReadOptions(dataset=dataset, skip_bad_lines=skip_bad_lines))
+    if not isinstance(stream, LogData):
+        raise IngestError(f"{source}: a {stream.source_format} log is streamed, not read into memory")
+    return stream
 
 
 @dataclass
 class IngestReport:
-    log: LogData
+    log: LogStream
     output: Path
     counts: dict[str, int]
 
@@ -84,10 +104,15 @@ def ingest(
     dataset: str | None = None,
     skip_bad_lines: bool = False,
     progress: Callable[[int, int], None] | None = None,
+    *,
+    scan_topic: str | None = None,
+    odom_topic: str | None = None,
+    base_frame: str | None = None,
 ) -> IngestReport:
     """Read `source` and write it as an MCAP at `output` (atomically)."""
     from .to_mcap import write_log_mcap
 
-    log = read_log(source, fmt, dataset, skip_bad_lines)
+    options = ReadOptions(dataset, skip_bad_lines, scan_topic, odom_topic, base_frame)
+    log = open_log(source, fmt, options)
     counts = write_log_mcap(log, Path(output), progress)
     return IngestReport(log, Path(output), counts)

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .base import ReadOptions
 from .logdata import LogData, ScanGeometry
 from .textlog import IngestError
 
@@ -24,6 +25,31 @@ CARMEN_NO_RETURN_M = 81.9
 """Readings at or beyond this are no return (the SICK LMS reports 81.91 m or so when nothing is hit)."""
 SATURATION_MIN_REPEATS = 100
 """A log's largest reading that recurs on at least this many beams is its laser's no-return value."""
+
+CARMEN_SUFFIXES = (".clf", ".clf.gz", ".log", ".log.gz")
+
+
+class CarmenReader:
+    """A CARMEN log file (.clf/.log, plain or gzip), or a directory holding exactly one."""
+
+    formats = ("carmen",)
+
+    def detect(self, source: Path) -> str | None:
+        if source.is_file():
+            return "carmen" if source.name.lower().endswith((*CARMEN_SUFFIXES, ".gz")) else None
+        return "carmen" if len(_logs_in(source)) == 1 else None
+
+    def open(self, source: Path, fmt: str, options: ReadOptions) -> LogData:
+        if source.is_dir():
+            logs = _logs_in(source)
+            if len(logs) != 1:
+                raise IngestError(f"{source}: expected one CARMEN log in the directory, found {len(logs)}")
+            source = logs[0]
+        return read_carmen(source, options.skip_bad_lines)
+
+
+def _logs_in(directory: Path) -> list[Path]:
+    return sorted(p for p in directory.iterdir() if p.name.endswith(CARMEN_SUFFIXES))
 
 
 def no_return_range_m(ranges_m: np.ndarray) -> float:

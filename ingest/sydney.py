@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .base import ReadOptions
 from .logdata import LogData, ScanGeometry
 from .textlog import IngestError, Table, parse_numeric_csv
 
@@ -28,6 +29,30 @@ CARPARK_BEACONS_MAT = "beac_juan3.mat"
 VICTORIA_DR_MAT = "aa3_dr.mat"
 VICTORIA_GPS_MAT = "aa3_gpsx.mat"
 VICTORIA_LASER_MAT = "aa3_lsr2.mat"
+
+
+class SydneyReader:
+    """The ACFR logs: a directory (or a file in it) with DRS.txt (text) or the .mat files."""
+
+    formats = ("sydney-text", "sydney-mat")
+
+    def detect(self, source: Path) -> str | None:
+        if source.is_file():
+            name = source.name.lower()
+            return "sydney-mat" if name.endswith(".mat") else "sydney-text" if name.endswith(".txt") else None
+        names = {p.name for p in source.iterdir()}
+        if CARPARK_MAT in names or VICTORIA_DR_MAT in names:
+            return "sydney-mat"
+        if "DRS.txt" in names or (source / "text" / "DRS.txt").exists():
+            return "sydney-text"
+        return None
+
+    def open(self, source: Path, fmt: str, options: ReadOptions) -> LogData:
+        directory = source if source.is_dir() else source.parent
+        if fmt == "sydney-text" and not (directory / "DRS.txt").exists() and (directory / "text").is_dir():
+            directory = directory / "text"
+        reader = read_sydney_text if fmt == "sydney-text" else read_sydney_mat
+        return reader(directory, options.skip_bad_lines)
 
 
 def _dataset_name(directory: Path) -> str:

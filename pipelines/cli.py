@@ -138,12 +138,19 @@ class Format(StrEnum):
     sydney_text = "sydney-text"
     sydney_mat = "sydney-mat"
     carmen = "carmen"
+    rosbag = "rosbag"
 
 
 @app.command()
 @guarded
 def ingest(
-    source: Annotated[Path, typer.Argument(help="A log directory or file (Sydney text/.mat, CARMEN .clf/.log[.gz]).")],
+    source: Annotated[
+        Path,
+        typer.Argument(
+            help="A log directory or file (Sydney text/.mat, CARMEN .clf/.log[.gz]), or a ROS bag "
+            "(ROS 1 .bag; ROS 2 bag directory, .db3 or .mcap)."
+        ),
+    ],
     output: Annotated[Path, typer.Option("-o", "--output", help="The MCAP file to write.")],
     format: Annotated[
         Format, typer.Option("--format", help="Input format; auto detects it from the names.")
@@ -154,8 +161,19 @@ def ingest(
     skip_bad_lines: Annotated[
         bool, typer.Option("--skip-bad-lines", help="Drop malformed lines and report how many.")
     ] = False,
+    scan_topic: Annotated[
+        str | None, typer.Option("--scan-topic", help="ROS bags: the LaserScan topic (default: the only one).")
+    ] = None,
+    odom_topic: Annotated[
+        str | None,
+        typer.Option("--odom-topic", help="ROS bags: the Odometry topic (default: the only one, else /tf)."),
+    ] = None,
+    base_frame: Annotated[
+        str | None,
+        typer.Option("--base-frame", help="ROS bags: the robot's base frame (default: from the odometry)."),
+    ] = None,
 ) -> None:
-    """Convert a Sydney (text or .mat) or CARMEN log to an MCAP with the gslam input channels."""
+    """Convert a Sydney (text or .mat) or CARMEN log, or a ROS bag, to an MCAP with the gslam input channels."""
     import time
 
     from ingest import ingest as run_ingest
@@ -167,7 +185,17 @@ def ingest(
         def progress(done: int, total: int) -> None:
             bar.update(task, completed=done, total=total)
 
-        report = run_ingest(source, output, format.value, dataset, skip_bad_lines, progress)
+        report = run_ingest(
+            source,
+            output,
+            format.value,
+            dataset,
+            skip_bad_lines,
+            progress,
+            scan_topic=scan_topic,
+            odom_topic=odom_topic,
+            base_frame=base_frame,
+        )
     for w in report.log.warnings:
         typer.secho(f"warning: {w}", fg=typer.colors.YELLOW, err=True)
     counts = ", ".join(f"{k} {v}" for k, v in report.counts.items())
@@ -249,6 +277,9 @@ def process(
         int | None,
         typer.Option("--threads", min=1, help="Threads of the filter's particle loops (default: all cores)."),
     ] = None,
+    occupancy: Annotated[
+        bool, typer.Option("--occupancy", help="Also write the final occupancy grid on /map/occupancy.")
+    ] = False,
 ) -> None:
     """Run G-SLAM (or a baseline) over an input MCAP; write the result MCAP and a Rerun recording."""
     from gslam.config import FilterConfig
@@ -282,6 +313,8 @@ def process(
         run_opts["grid_cells"] = grid_cells
     if threads is not None:
         run_opts["threads"] = threads
+    if occupancy:
+        run_opts["occupancy"] = True
     cfg = RunConfig(filter=FilterConfig.from_dict(filter_opts), **run_opts)
     from pipelines.runner import METHODS
 
@@ -351,13 +384,24 @@ def export(
     map_csv: Annotated[
         Path | None, typer.Option("--map", help="Write the final map as CSV (x, y, probability).")
     ] = None,
+    occupancy: Annotated[
+        Path | None,
+        typer.Option("--occupancy", help="Write a map_server map: this YAML and the PGM beside it."),
+    ] = None,
+    input: Annotated[
+        Path | None, typer.Option("--input", help="The input MCAP (default: the path in the result).")
+    ] = None,
+    resolution: Annotated[float, typer.Option("--resolution", help="Occupancy cell size [m].")] = 0.05,
 ) -> None:
-    """Export a result for other tools: trajectory as TUM (evo reads it), map as CSV."""
+    """Export a result for other tools: trajectory as TUM (evo reads it), map as CSV, occupancy grid as a
+    map_server map (PGM + YAML, for ROS navigation)."""
     from pipelines.export import export_result
 
-    if tum is None and map_csv is None:
-        raise ValueError("nothing to export: give --tum and/or --map")
-    for path in export_result(result, tum, map_csv):
+    if tum is None and map_csv is None and occupancy is None:
+        raise ValueError("nothing to export: give --tum, --map and/or --occupancy")
+    if not resolution > 0:
+        raise ValueError(f"--resolution must be positive, got {resolution}")
+    for path in export_result(result, tum, map_csv, occupancy, input, resolution):
         typer.echo(f"wrote {path}")
 
 

@@ -10,10 +10,10 @@ from typing import Any
 import numpy as np
 
 from gslam.metrics import gps_mean_error, gps_rmse_aligned, pole_map_error, relations_error
+from mcaplog import channels as ch
+from mcaplog.mcapio import McapInput
 
-from . import channels as ch
 from .errors import InputError
-from .mcapio import McapInput
 
 METRIC_KEYS = (
     "gps_mean_error_m",

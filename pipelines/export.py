@@ -1,4 +1,5 @@
-"""`gslam export`: the final best trajectory in TUM format and the final map as CSV."""
+"""`gslam export`: the final best trajectory in TUM format, the final map as CSV, and the occupancy grid
+as a map_server map (PGM + YAML)."""
 
 from __future__ import annotations
 
@@ -10,11 +11,14 @@ import numpy as np
 from .evaluate import read_result
 
 
-def _atomic_write(path: Path, text: str) -> Path:
+def _atomic_write(path: Path, content: str | bytes) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
+    if isinstance(content, bytes):
+        tmp.write_bytes(content)
+    else:
+        tmp.write_text(content)
     os.replace(tmp, path)
     return path
 
@@ -34,7 +38,7 @@ def tum_text(stamp_s: np.ndarray, poses: np.ndarray) -> str:
             np.cos(half),
         ]
     )
-    lines = ["# timestamp tx ty tz qx qy qz qw (gslam final best trajectory, laser pose)"]
+    lines = ["# timestamp tx ty tz qx qy qz qw (gslam final best path: the base's if the laser is mounted off it)"]
     lines += [" ".join(f"{v:.9f}" if i == 0 else f"{v:.6f}" for i, v in enumerate(r)) for r in rows]
     return "\n".join(lines) + "\n"
 
@@ -44,7 +48,14 @@ def map_csv_text(xy: np.ndarray, p: np.ndarray) -> str:
     return "\n".join(lines) + "\n"
 
 
-def export_result(result: Path, tum: Path | None = None, map_csv: Path | None = None) -> list[Path]:
+def export_result(
+    result: Path,
+    tum: Path | None = None,
+    map_csv: Path | None = None,
+    occupancy_yaml: Path | None = None,
+    input_path: Path | None = None,
+    resolution_m: float = 0.05,
+) -> list[Path]:
     res = read_result(result)
     written = []
     if tum is not None:
@@ -56,4 +67,8 @@ def export_result(result: Path, tum: Path | None = None, map_csv: Path | None = 
         written.append(_atomic_write(tum, tum_text(stamps, res.trajectory)))
     if map_csv is not None:
         written.append(_atomic_write(map_csv, map_csv_text(res.map_xy, res.map_p)))
+    if occupancy_yaml is not None:
+        from .navmap import grid_from_result, write_map_server
+
+        written += write_map_server(grid_from_result(result, input_path, resolution_m), occupancy_yaml)
     return written

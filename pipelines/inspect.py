@@ -5,8 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from mcaplog.mcapio import NS, McapInput
+
 from .errors import InputError
-from .mcapio import NS, McapInput
 
 
 def mcap_info(path: Path) -> dict[str, Any]:

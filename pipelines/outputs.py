@@ -11,9 +11,9 @@ import numpy as np
 
 from gslam.filter import SlamFilter
 from gslam.scan import ScanGeometry, transform_points
+from mcaplog import channels as ch
+from mcaplog.mcapio import AtomicMcapWriter, to_ns
 
-from . import channels as ch
-from .mcapio import AtomicMcapWriter, to_ns
 from .runner import Step
 
 
@@ -178,7 +178,7 @@ class RerunResultWriter:
         ranges = st.event.ranges_m
         ok = np.isfinite(ranges) & (ranges < self.geometry.max_range_m)
         pts = np.column_stack([ranges[ok] * np.cos(self.bearings[ok]), ranges[ok] * np.sin(self.bearings[ok])])
-        rec.log("world/scan", rr.Points2D(transform_points(r.best_pose, pts), colors=[[255, 60, 200]], radii=0.06))
+        rec.log("world/scan", rr.Points2D(transform_points(st.laser_pose, pts), colors=[[255, 60, 200]], radii=0.06))
         rec.log("world/particles", rr.Points2D(r.poses[:, :2], colors=[[255, 140, 0]], radii=0.12))
         self.online.append(r.best_pose[:2].copy())
         if self.snapshot_every and st.event.index % self.snapshot_every == 0:

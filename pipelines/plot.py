@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 
 from gslam.metrics import interpolate_positions
+from mcaplog import channels as ch
+from mcaplog.mcapio import McapInput
 
-from . import channels as ch
 from .evaluate import read_result
-from .mcapio import McapInput
 
 
 def plot_result(result: Path, out: Path, reference: Path | None = None) -> Path:

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from gslam import __version__
+from mcaplog import channels as ch
 
-from . import channels as ch
 from .outputs import McapResultWriter, RerunResultWriter
 from .runner import RunConfig, SlamRunner
 from .source import InputLog
@@ -49,6 +49,22 @@ def _landmarks(log: InputLog) -> np.ndarray | None:
     if not msgs:
         return None
     return np.column_stack([msgs[0].value["x_m"], msgs[0].value["y_m"]])
+
+
+def _write_occupancy(
+    mcap_out: McapResultWriter, runner: SlamRunner, log: InputLog, scan_indices: list[int], cfg: RunConfig
+) -> None:
+    """The final trinary occupancy grid on /map/occupancy (scans cast from the final laser poses)."""
+    from .navmap import build_grid, occupancy_probabilities
+
+    flt = runner.filter  # laser poses: where the scans were taken
+    times, laser = flt.best_trajectory()
+    xy, p = flt.map_points(flt.best_particle())
+    p = occupancy_probabilities(p, getattr(cfg.filter, "map_update", "binary"))
+    grid = build_grid(log, np.asarray(scan_indices), laser, xy, p, cfg.occupancy_resolution_m, cfg.laser_yaw_offset_rad)
+    t_last = float(times[-1]) if len(times) else 0.0
+    msg = ch.navigation_grid(t_last, grid.state, grid.spec.origin_xy_m, grid.spec.resolution_m)
+    mcap_out.writer.write_proto(ch.MAP_OCCUPANCY, msg, mcap_out.last_ns)
 
 
 def process(
@@ -91,6 +107,7 @@ def process(
     total = log.scan_count if cfg.max_scans is None else min(cfg.max_scans, log.scan_count)
     step_ms: list[float] = []
     filter_ms: list[float] = []
+    scan_indices: list[int] = []
     updates = 0
     interrupted = False
     error: BaseException | None = None
@@ -99,13 +116,14 @@ def process(
     t_prev = t_start
     try:
         for st in runner.steps():
-            mcap_out.step(st, runner.filter)
+            mcap_out.step(st, runner.output_filter)
             if rrd_out is not None:
-                rrd_out.step(st, runner.filter)
+                rrd_out.step(st, runner.output_filter)
             now = time.perf_counter()
             step_ms.append((now - t_prev) * 1e3)
             t_prev = now
             filter_ms.append(st.step_ms)
+            scan_indices.append(st.event.index)
             updates += st.result.updated
             first_t = st.event.t_s if first_t is None else first_t
             last_t = st.event.t_s
@@ -118,7 +136,7 @@ def process(
         interrupted = True
         error = e
     wall = time.perf_counter() - t_start
-    flt = runner.filter
+    flt = runner.output_filter
     summary = ProcessSummary(
         steps=len(filter_ms),
         scans_in_log=log.scan_count,
@@ -149,6 +167,8 @@ def process(
         "points_per_observation": cfg.filter.points_per_observation,
     }
     try:
+        if cfg.occupancy and not interrupted and scan_indices:
+            _write_occupancy(mcap_out, runner, log, scan_indices, cfg)
         mcap_out.finish(flt, result_meta)
         if rrd_out is not None:
             rrd_out.finish(flt)

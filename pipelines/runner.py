@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 from collections.abc import Iterator
@@ -19,6 +20,7 @@ from gslam.scan import Scan, ScanGeometry
 from gslam.vehicle import AckermannVehicle, vehicle_preset
 
 from .errors import InputError
+from .mount import BaseFrameView
 from .source import ControlEvent, GpsEvent, InputLog, OdomEvent, ScanEvent
 
 
@@ -45,6 +47,10 @@ class RunConfig:
     threads: int | None = None
     """Worker threads of the filter's compiled particle loops (None: every core). Results do not depend
     on it."""
+    occupancy: bool = False
+    """Also write the final trinary occupancy grid on /map/occupancy (pipelines.navmap)."""
+    occupancy_resolution_m: float = 0.05
+    """Cell size of that grid [m]."""
 
     RUN_OPTIONS = (
         "method",
@@ -53,6 +59,8 @@ class RunConfig:
         "map_snapshot_every",
         "max_scans",
         "laser_yaw_offset_rad",
+        "occupancy",
+        "occupancy_resolution_m",
     )
 
     def as_dict(self) -> dict:
@@ -63,7 +71,10 @@ class RunConfig:
 class Step:
     event: ScanEvent
     result: StepResult
+    """The filter's step; its poses are the base's where the input records a laser mount."""
     step_ms: float
+    laser_pose: np.ndarray
+    """The best particle's laser pose (where the scan was taken)."""
 
 
 METHODS = ("gslam", "fastslam1", "fastslam2", "grid", "grid-hr")
@@ -116,6 +127,9 @@ class SlamRunner:
         self.filter = make_filter(
             cfg, np.zeros(3) if self.initial_pose is None else self.initial_pose, log.self_return_range_m
         )
+        self.mount = log.mount
+        self.output_filter = self.filter if self.mount is None else BaseFrameView(self.filter, self.mount)
+        """What the outputs read: the filter, seen from the base when the laser is mounted off it."""
         self.gps: list[tuple[float, float, float]] = []
 
     def _initial_pose(self) -> tuple[np.ndarray | None, float | None]:
@@ -184,19 +198,32 @@ class SlamRunner:
                 else:
                     if odom_last is None:
                         raise InputError(f"{self.log.path}: scan {ev.index} has no odometry before it")
+                    mount = self.mount
                     if odom_prev is None:
-                        self.filter.poses[:] = odom_last
+                        self.filter.poses[:] = odom_last if mount is None else mount.laser_of(odom_last)
                     else:
                         delta = odometry_delta(odom_prev, odom_last)
+                        if mount is None:
 
-                        def predict(poses, rng, delta=delta):
-                            return apply_odometry(poses, delta, rng, fcfg.odom_sigma)
+                            def predict(poses, rng, delta=delta):
+                                return apply_odometry(poses, delta, rng, fcfg.odom_sigma)
+
+                        else:
+                            # The odometry (and its noise) moves the base; the particles are laser poses.
+                            def predict(poses, rng, delta=delta, mount=mount):
+                                base = apply_odometry(mount.base_of(poses), delta, rng, fcfg.odom_sigma)
+                                return mount.laser_of(base)
 
                     odom_prev = odom_last
                 scan = Scan(ev.stamp_s, ev.ranges_m, geom, self.min_range_m)
                 t0 = time.perf_counter()
                 result = self.filter.step(scan, predict, ev.intensities)
                 step_ms = (time.perf_counter() - t0) * 1e3
-                yield Step(ev, result, step_ms)
+                laser_pose = result.best_pose
+                if self.mount is not None:
+                    result = dataclasses.replace(
+                        result, poses=self.mount.base_of(result.poses), best_pose=self.mount.base_of(result.best_pose)
+                    )
+                yield Step(ev, result, step_ms, laser_pose)
                 if self.cfg.max_scans is not None and ev.index + 1 >= self.cfg.max_scans:
                     break

@@ -10,10 +10,11 @@ from typing import Any
 import numpy as np
 
 from gslam.scan import ScanGeometry
+from mcaplog import channels as ch
+from mcaplog.mcapio import McapInput
 
-from . import channels as ch
 from .errors import InputError
-from .mcapio import McapInput
+from .mount import LaserMount
 
 
 @dataclass
@@ -67,6 +68,11 @@ class InputLog:
         )
         self.motion_model = self.meta["vehicle"].get("motion_model", "ackermann")
         self.self_return_range_m = float(s.get("self_return_range_m", 0.0))
+        try:
+            # Only odometry logs carry a mount (ROS bags); for the rest base and laser are one frame.
+            self.mount = LaserMount.from_sensor(s) if self.motion_model == "odometry" else None
+        except (KeyError, TypeError, ValueError) as e:
+            raise InputError(f"{self.path}: the 'sensor' metadata has a malformed mount ({e})") from None
         counts = {}
         if summary is not None and summary.statistics is not None:
             for cid, channel in summary.channels.items():

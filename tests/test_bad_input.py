@@ -96,8 +96,8 @@ def test_backwards_timestamps_are_kept_in_file_order(tmp_path):
     src = write_sydney(tmp_path / "log", [f"1.30,{ranges}", f"1.20,{ranges}", f"1.40,{ranges}"])
     report = ingest(src, tmp_path / "o.mcap")
     assert any("1 timestamps go backwards" in w for w in report.log.warnings)
-    from pipelines import channels as ch
-    from pipelines.mcapio import McapInput
+    from mcaplog import channels as ch
+    from mcaplog.mcapio import McapInput
 
     stamps = [ch.t_of(m.value.timestamp) for m in McapInput(tmp_path / "o.mcap").messages([ch.LASER])]
     assert stamps == pytest.approx([1.30, 1.20, 1.40])

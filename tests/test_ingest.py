@@ -9,9 +9,9 @@ import pytest
 from conftest import CARPARK, INTEL, VICTORIA, require
 
 from ingest import ingest, read_log
-from pipelines import channels as ch
+from mcaplog import channels as ch
+from mcaplog.mcapio import McapInput
 from pipelines.inspect import mcap_info
-from pipelines.mcapio import McapInput
 
 
 def test_carpark_text_counts_and_values(tmp_path):

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from pipelines import channels as ch
+from mcaplog import channels as ch
 from pipelines.cli import app
 from pipelines.evaluate import METRIC_KEYS, evaluate_result, read_result
 from pipelines.inspect import mcap_info
@@ -186,7 +186,7 @@ def test_fastslam_end_to_end(carpark_mcap, tmp_path, method):
     assert m["gps_mean_error_m"] < 0.5
     assert m["poles_within_1m"] >= 13
     assert out.with_suffix(".rrd").exists()
-    from pipelines.mcapio import McapInput
+    from mcaplog.mcapio import McapInput
 
     lm = next(McapInput(out).messages([ch.SLAM_LANDMARKS])).value
     assert len(lm["x_m"]) == m["final_map_points"] and all(c[0] > 0 and c[3] > 0 for c in lm["cov"])
@@ -208,7 +208,7 @@ def test_grid_end_to_end(carpark_mcap, tmp_path, method):
     # Measured (seeds 0, 1): grid 0.98 / 0.65 m, grid-hr 0.62 / 0.32 m; dead reckoning 1.67 m.
     assert m["gps_mean_error_m"] < DEAD_RECKONING_ERROR_M
     assert m["final_map_points"] > 20
-    from pipelines.mcapio import McapInput
+    from mcaplog.mcapio import McapInput
 
     grid = next(McapInput(out).messages([ch.SLAM_GRID])).value
     cells = 3000 if method == "grid" else 48000

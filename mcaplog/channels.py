@@ -35,6 +35,7 @@ SLAM_MAP_FINAL = "/slam/map_final"
 SLAM_STATS = "/slam/stats"
 SLAM_LANDMARKS = "/slam/landmarks"  # FastSLAM: landmark means and covariances (final, best particle)
 SLAM_GRID = "/slam/grid"  # grid methods: occupancy grid (final, best particle)
+MAP_OCCUPANCY = "/map/occupancy"  # `gslam process --occupancy`: trinary navigation grid (final)
 
 MAP_FRAME = "map"
 
@@ -52,7 +53,7 @@ ACKERMANN_SCHEMA: dict[str, Any] = {
 
 ODOM_POSE_SCHEMA: dict[str, Any] = {
     "title": "gslam.OdometryPose",
-    "description": "Integrated wheel odometry pose in the odometry frame (CARMEN ODOM, or FLASER odom).",
+    "description": "Integrated odometry pose, odometry frame (CARMEN ODOM or FLASER odom; ROS bags: base at scan).",
     "type": "object",
     "properties": {
         "t_s": {"type": "number", "description": "time stamp from the log [s] (may go backwards)"},
@@ -61,7 +62,7 @@ ODOM_POSE_SCHEMA: dict[str, Any] = {
         "theta_rad": {"type": "number"},
         "tv_mps": {"type": ["number", "null"], "description": "translational velocity, if logged"},
         "rv_radps": {"type": ["number", "null"], "description": "rotational velocity, if logged"},
-        "source": {"type": "string", "description": "ODOM or FLASER"},
+        "source": {"type": "string", "description": "ODOM or FLASER (CARMEN), interpolated (ROS bags)"},
     },
     "required": ["t_s", "x_m", "y_m", "theta_rad"],
 }
@@ -212,6 +213,24 @@ def occupancy_grid(t_s: float, prob: np.ndarray, origin: np.ndarray, cell_m: flo
     msg.cell_size.x = cell_m
     msg.cell_size.y = cell_m
     msg.fields.add(name="occupancy", offset=0, type=PackedElementField.FLOAT32)
+    msg.data = rows.tobytes()
+    return msg
+
+
+def navigation_grid(
+    t_s: float, state: np.ndarray, origin: tuple[float, float], cell_m: float, frame_id: str = MAP_FRAME
+):
+    """A foxglove.Grid with one int8 field "occupancy": 100 occupied, 0 free, -1 unknown (as a ROS
+    OccupancyGrid); `state` is indexed [iy, ix] (rows along y)."""
+    from foxglove_schemas_protobuf.Grid_pb2 import Grid
+
+    rows = np.ascontiguousarray(state.astype(np.int8))
+    msg = Grid(frame_id=frame_id, column_count=rows.shape[1], row_stride=rows.shape[1], cell_stride=1)
+    msg.timestamp.CopyFrom(timestamp(t_s))
+    _set_pose(msg.pose, origin[0], origin[1], 0.0)
+    msg.cell_size.x = cell_m
+    msg.cell_size.y = cell_m
+    msg.fields.add(name="occupancy", offset=0, type=PackedElementField.INT8)
     msg.data = rows.tobytes()
     return msg
 

@@ -1,0 +1,31 @@
+"""Planar poses (x, y, heading) as rigid transforms: composition and inverse, vectorised over leading axes."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .motion import wrap_angle
+
+
+def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a (+) b: the pose b, given in the frame of pose a, in a's parent frame. Shapes (..., 3) broadcast."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack(
+        [
+            a[..., 0] + c * b[..., 0] - s * b[..., 1],
+            a[..., 1] + s * b[..., 0] + c * b[..., 1],
+            wrap_angle(a[..., 2] + b[..., 2]),
+        ],
+        axis=-1,
+    )
+
+
+def inverse(a: np.ndarray) -> np.ndarray:
+    """a^-1, so that compose(a, inverse(a)) is the identity."""
+    a = np.asarray(a, dtype=float)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack(
+        [-c * a[..., 0] - s * a[..., 1], s * a[..., 0] - c * a[..., 1], wrap_angle(-a[..., 2])],
+        axis=-1,
+    )
