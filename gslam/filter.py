@@ -187,7 +187,7 @@ class GSlamFilter:
         """Steps 2 to 4 local to the scan, compiled (`gslam.mapupdate`). Returns the points in all maps."""
         cfg, n = self.cfg, self.cfg.particles
         returns = scan.returns
-        noise = self.rng.standard_normal((n, int(returns.sum()), cfg.points_per_observation, 2))
+        noise = self.rng.standard_normal((n, int(returns.sum()), cfg.points_per_observation, 2), dtype=np.float32)
         geom = scan.geometry
         xy, p, lo, hi = layout
         out_xy, out_p, bounds = update_maps(

@@ -41,8 +41,9 @@ def _q(d, hit_sigma, hit_ratio, free_ratio):
 
 @njit(cache=True, inline="always")
 def _logit_update(p, q):
-    logit = math.log(p) - math.log1p(-p) + math.log(q)
-    v = 1.0 / (1.0 + math.exp(-logit))
+    """logit p += log q (eq. 7, binary semantic), computed as p q / (p q + 1 - p)."""
+    pq = p * q
+    v = pq / (pq + 1.0 - p)
     return min(max(v, 1e-6), 1.0 - 1e-6)
 
 
@@ -127,16 +128,20 @@ def _update_one(
         out_xy[cand_start + n_cand, 1] = y
         out_p[cand_start + n_cand] = p
         n_cand += 1
-    # 2. New points around every return.
+    # 2. New points around every return: z_hat ~ N(z, sigma_r), bearing ~ N(b, sigma_b); the small bearing
+    # noise turns the return's direction by a rotation expanded to third order (error < 1e-9 at 5 sigma).
     m = noise.shape[1]
     for k in range(ret_idx.shape[0]):
         j = ret_idx[k]
-        b = start_rad + inc_rad * j
+        heading = ph + start_rad + inc_rad * j
+        cb, sb = math.cos(heading), math.sin(heading)
         for t in range(m):
             z_hat = ranges[j] + noise[k, t, 0] * sens[0]
-            b_hat = b + noise[k, t, 1] * sens[1]
-            x = px + z_hat * math.cos(ph + b_hat)
-            y = py + z_hat * math.sin(ph + b_hat)
+            d = noise[k, t, 1] * sens[1]
+            cd = 1.0 - 0.5 * d * d
+            sd = d - d * d * d / 6.0
+            x = px + z_hat * (cb * cd - sb * sd)
+            y = py + z_hat * (sb * cd + cb * sd)
             if x < x0 or x >= x1 or y < y0 or y >= y1:
                 continue
             g = int(math.floor((x - x0) / cell_m)) * ny + int(math.floor((y - y0) / cell_m))
@@ -323,7 +328,7 @@ def update_maps(
         float(start_angle_rad),
         float(angle_increment_rad),
         float(max_range_m),
-        np.ascontiguousarray(noise, dtype=float),
+        np.ascontiguousarray(noise),
         np.array([range_sigma_m, bearing_sigma_rad]),
         params,
         workspace.cell_count,
