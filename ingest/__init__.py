@@ -63,11 +63,27 @@ def read_log(source: Path, fmt: str = "auto", dataset: str | None = None, skip_b
         directory = source if source.is_dir() else source.parent
         if fmt == "sydney-text" and not (directory / "DRS.txt").exists() and (directory / "text").is_dir():
             directory = directory / "text"
+        if source.is_file():
+            _check_sydney_file(source, directory, fmt)
         reader = read_sydney_text if fmt == "sydney-text" else read_sydney_mat
         log = reader(directory, skip_bad_lines)
     if dataset:
         log.dataset = dataset
     return log
+
+
+def _check_sydney_file(source: Path, directory: Path, fmt: str) -> None:
+    """A Sydney log is a directory; a file given instead must be one of the log's own files."""
+    if fmt == "sydney-text" and not (directory / "DRS.txt").exists():
+        raise IngestError(
+            f"{source}: a Sydney text log is a directory holding DRS.txt (with LASER.txt, GPS.txt), and "
+            f"{directory} has no DRS.txt; give the log's directory (or --format for another format)"
+        )
+    if fmt == "sydney-mat" and not ((directory / CARPARK_MAT).exists() or (directory / VICTORIA_DR_MAT).exists()):
+        raise IngestError(
+            f"{source}: not a known Sydney MATLAB log (expected {CARPARK_MAT}, or {VICTORIA_DR_MAT} with "
+            f"{source.name} beside it); give the log's directory (or --format for another format)"
+        )
 
 
 @dataclass

@@ -2,21 +2,12 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 
 from .evaluate import read_result
-
-
-def _atomic_write(path: Path, text: str) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-    return path
+from .tempfiles import write_text_atomic
 
 
 def tum_text(stamp_s: np.ndarray, poses: np.ndarray) -> str:
@@ -53,7 +44,7 @@ def export_result(result: Path, tum: Path | None = None, map_csv: Path | None = 
         for i in range(1, len(stamps)):  # over steps, once
             if stamps[i] <= stamps[i - 1]:
                 stamps[i] = stamps[i - 1] + 1e-6
-        written.append(_atomic_write(tum, tum_text(stamps, res.trajectory)))
+        written.append(write_text_atomic(tum, tum_text(stamps, res.trajectory)))
     if map_csv is not None:
-        written.append(_atomic_write(map_csv, map_csv_text(res.map_xy, res.map_p)))
+        written.append(write_text_atomic(map_csv, map_csv_text(res.map_xy, res.map_p)))
     return written

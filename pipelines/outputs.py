@@ -15,6 +15,7 @@ from gslam.scan import ScanGeometry, transform_points
 from . import channels as ch
 from .mcapio import AtomicMcapWriter, to_ns
 from .runner import Step
+from .tempfiles import temporary_for
 
 
 def probability_colors(p: np.ndarray) -> np.ndarray:
@@ -131,7 +132,7 @@ class RerunResultWriter:
         self.rr = rr
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+        self.tmp = temporary_for(self.path)
         self.rec = rr.RecordingStream(app_id)
         self.rec.save(str(self.tmp), default_blueprint=self.blueprint())
         self.geometry = geometry
