@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import asdict, dataclass, fields
 from typing import Any, Literal
 
@@ -67,10 +68,12 @@ class FilterConfig:
     """p_thr: a probability for the binary map; with prune_relative, a fraction of the mean p."""
     prune_relative: bool = False
     """Compare p with prune_threshold x mean p (True) or with prune_threshold itself (literal)."""
-    max_points_per_cell: int = 2
+    max_points_per_cell: int = 1
     """Density control: keep at most this many points (the most probable) per cell; 0 = off."""
-    cell_size_m: float = 0.25
-    """Cell size of the density control."""
+    cell_size_m: float = 0.1
+    """Cell size of the density control (and of the cell-mean prior). 0.1 m keeps about ten points per
+    metre of wall, dense enough for the matcher to find a point near every return (0.25 m with two
+    points per cell: mit-csail's first 400 scans 0.101 m against 0.046 m; docs/CHOICES.md)."""
 
     # Open point 4: the importance weight.
     weighting: Weighting = "matched_field"
@@ -110,13 +113,19 @@ class FilterConfig:
     """"motion": sample the motion model (the paper); "scan_match": sample the motion model, then refine
     each particle's pose by hill climbing a likelihood field of the scan over the particle's own point
     map (GMapping's scan matcher, on points instead of a grid), then sample around the match."""
-    match_sigma_m: float = 0.158
-    """Distance scale of the matcher's score exp(-d^2 / 2 sigma^2) (GMapping: exp(-d^2 / 0.05))."""
+    match_sigma_m: float = 0.1
+    """Distance scale of the matcher's score exp(-d^2 / 2 sigma^2) at short range (the width grows with the
+    range: match_sigma_rad). GMapping's exp(-d^2 / 0.05) is sigma 0.158 m over a 1-cell search."""
+    match_sigma_rad: float | None = None
+    """Angular part of the score's width: a return at range r is scored with sigma^2 = match_sigma_m^2 +
+    (r match_sigma_rad)^2, the spacing of the map's points along a surface at that range. None: the
+    sensor's angle between beams (from the input)."""
     match_cell_m: float = 0.05
     """Cell of the raster the matcher builds from each particle's map points near the scan; a cell
     keeps the mean of its points (GMapping's map resolution, delta 0.05 m)."""
-    match_kernel: int = 1
-    """Cells searched either side of an end point's cell for the nearest occupied cell."""
+    match_kernel: int = 2
+    """Cells searched either side of an end point's cell for the nearest occupied cell (2: within
+    about 0.1 m; GMapping searches 1 cell of its denser grid)."""
     match_min_p: float = 0.5
     """Map points with at least this probability take part in matching and weighing."""
     match_step_xy_m: float = 0.05
@@ -166,42 +175,13 @@ class FilterConfig:
         self.validate()
 
     def validate(self) -> None:
-        if not 1 <= self.particles <= 4096:
-            raise ValueError(f"particles must be between 1 and 4096, got {self.particles}")
-        if self.points_per_observation < 1:
-            raise ValueError(f"points per observation must be at least 1, got {self.points_per_observation}")
-        choices = {
-            "observation_unit": ("beam", "scan"),
-            "map_update": ("global", "observed", "binary"),
-            "weighting": ("sum", "beam_sum", "likelihood_field", "matched_field"),
-            "prior_interpolation": ("cell_mean", "nearest_mean", "idw", "constant"),
-            "proposal": ("motion", "scan_match"),
-            "update_schedule": ("every_scan", "travel"),
-            "control_noise": ("per_sample", "per_interval"),
-            "fill_skipped": ("odometry", "sampled"),
-        }
-        for name, allowed in choices.items():
-            if getattr(self, name) not in allowed:
-                raise ValueError(f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}")
-        if self.match_levels < 1 or self.match_max_iterations < 1 or self.match_kernel < 0:
-            raise ValueError("match_levels and match_max_iterations must be at least 1, match_kernel at least 0")
-        if not 0 < self.resample_threshold <= 1:
-            raise ValueError("resample_threshold must be in (0, 1]")
-        for name in (
-            "range_sigma_m",
-            "hit_sigma_m",
-            "weight_sigma_m",
-            "cell_size_m",
-            "prior_radius_m",
-            "match_sigma_m",
-            "match_step_xy_m",
-            "match_step_phi_rad",
-            "match_cell_m",
-            "weight_miss_m",
-            "weight_gain",
-        ):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"{name} must be positive")
+        """Check every field against its annotated type (int, float, bool, a Literal's choices, an
+        optional or a fixed-length tuple) and its range (`_LIMITS`; numbers without an entry must be
+        finite and non-negative). A bad value raises ValueError naming the option, what was expected
+        and what was given. New fields are checked by their annotation without further code."""
+        check_fields(self, _LIMITS)
+        if self.map_update == "binary" and not 0 < self.prior_p0 < 1:
+            raise ValueError(f"prior_p0 must be a probability in (0, 1) with map_update binary, got {self.prior_p0!r}")
 
     def as_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -236,3 +216,101 @@ class FilterConfig:
         )
         base.update(overrides)
         return cls(**base)
+
+
+# Ranges of numeric options: (low, high, low inclusive). Numbers not listed must be >= 0; every number
+# must be finite. Upper bounds keep the arrays the filter allocates to a size a machine holds.
+_LIMITS: dict[str, tuple[float, float, bool]] = {
+    "particles": (1, 4096, True),
+    "points_per_observation": (1, 1000, True),
+    "seed": (0, 2**32 - 1, True),
+    "range_sigma_m": (0, math.inf, False),
+    "hit_sigma_m": (0, math.inf, False),
+    "hit_ratio": (0, math.inf, False),
+    "free_ratio": (0, math.inf, False),
+    "free_space_beams": (0, 1000, True),
+    "max_points_per_cell": (0, 1000, True),
+    "cell_size_m": (0.01, math.inf, True),
+    "weight_sigma_m": (0, math.inf, False),
+    "weight_floor": (0, 1, False),
+    "weight_beam_stride": (1, 10_000, True),
+    "prior_neighbours": (1, 64, True),
+    "prior_radius_m": (0, math.inf, False),
+    "prior_p0": (0, math.inf, False),
+    "match_sigma_m": (0, math.inf, False),
+    "match_step_xy_m": (0, math.inf, False),
+    "match_step_phi_rad": (0, math.inf, False),
+    "match_levels": (1, 30, True),
+    "match_kernel": (0, 20, True),
+    "match_sigma_rad": (0, 1, True),
+    "match_cell_m": (0.005, math.inf, True),
+    "match_min_p": (0, 1, True),
+    "weight_miss_m": (0, math.inf, False),
+    "weight_gain": (0, math.inf, False),
+    "match_max_iterations": (1, 10_000, True),
+    "match_min_score": (0, 1, True),
+    "resample_threshold": (0, 1, False),
+}
+
+
+def check_fields(obj: Any, limits: dict[str, tuple[float, float, bool]], skip: tuple[str, ...] = ()) -> None:
+    """Check every field of the dataclass `obj` (but `skip`) by its annotated type and `limits`."""
+    import typing
+
+    hints = typing.get_type_hints(type(obj))
+    for f in fields(obj):
+        if f.name not in skip:
+            check_value(f.name, hints[f.name], getattr(obj, f.name), limits)
+
+
+def _type_name(tp: Any) -> str:
+    return {int: "an integer", float: "a number", bool: "true or false", str: "a string"}.get(tp, str(tp))
+
+
+def check_value(name: str, tp: Any, value: Any, limits: dict[str, tuple[float, float, bool]]) -> None:
+    """Raise ValueError unless `value` fits the annotation `tp` and the range of option `name` in
+    `limits` (numbers without an entry: finite and >= 0)."""
+    import types
+    import typing
+
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin is Literal:
+        if value not in args or isinstance(value, bool):
+            raise ValueError(f"{name} must be one of {', '.join(map(str, args))}, got {value!r}")
+        return
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return
+        (inner,) = [a for a in args if a is not type(None)]
+        check_value(name, inner, value, limits)
+        return
+    if origin is tuple:
+        if not isinstance(value, list | tuple) or len(value) != len(args):
+            raise ValueError(f"{name} must be a list of {len(args)} numbers, got {value!r}")
+        for i, (a, v) in enumerate(zip(args, value, strict=True)):
+            check_value(f"{name}[{i}]", a, v, limits)
+        return
+    if tp is str:
+        if not isinstance(value, str):
+            raise ValueError(f"{name} must be a string, got {value!r}")
+        return
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ValueError(f"{name} must be true or false, got {value!r}")
+        return
+    if tp in (int, float):
+        ok = isinstance(value, numbers.Integral) if tp is int else isinstance(value, numbers.Real)
+        if not ok or isinstance(value, bool):
+            raise ValueError(f"{name} must be {_type_name(tp)}, got {value!r}")
+        if not math.isfinite(value):
+            raise ValueError(f"{name} must be a finite number, got {value!r}")
+        lo, hi, lo_inclusive = limits.get(name.split("[")[0], (0, math.inf, True))
+        if value < lo or (value == lo and not lo_inclusive) or value > hi:
+            if hi == math.inf:
+                wanted = f"{'>=' if lo_inclusive else '>'} {lo:g}"
+            else:
+                wanted = f"in {'[' if lo_inclusive else '('}{lo:g}, {hi}]"
+            raise ValueError(f"{name} must be {wanted}, got {value!r}")
+        return
+    if isinstance(tp, type) and not isinstance(value, tp):  # other kinds of field: their class at least
+        raise ValueError(f"{name} must be a {tp.__name__}, got {value!r}")

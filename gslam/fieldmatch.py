@@ -7,9 +7,12 @@ GMapping's scan matcher (Grisetti, Stachniss & Burgard 2007; openslam_gmapping `
   (its end points' box at the particle's motion sample, plus a margin) are rasterised into a fine grid
   (`cell_m`); each occupied cell keeps the mean of its points, as GMapping's cells keep the mean of
   their hits. The window is local to the scan, so the work does not grow with the map.
-- The score of a pose is sum_j exp(-d_j^2 / 2 sigma_s^2), d_j the distance from return j's end point to
+- The score of a pose is sum_j exp(-d_j^2 / 2 sigma_j^2), d_j the distance from return j's end point to
   the nearest cell mean among the (2k+1)^2 cells around it (k = `kernel`) whose neighbour one cell back
-  along the beam is free (so a wall is not matched from its far side).
+  along the beam is free (so a wall is not matched from its far side). The width grows with the
+  return's range r_j: sigma_j^2 = sigma_s^2 + (r_j sigma_a)^2, sigma_a the sensor's angle between beams
+  by default, because the map samples a surface at range r only every r x (angle between beams): a far
+  return between two of its points is that far from the nearest even at the true pose.
 - The pose climbs that score from the motion sample: one step forwards and backwards in x, y and phi,
   move to the best while it improves, halve the steps when it does not, `levels` times.
 - The log-likelihood of the scan at the matched pose is sum_j -d_j^2 / 2 sigma_l^2, with d_j = `miss_m`
@@ -58,24 +61,24 @@ def _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy):
 
 
 @njit(cache=True)
-def _score(pose, ends, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, inv_2s2):
+def _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, inv_2s2):
+    """Sum over returns j of exp(-d_j^2 inv_2s2[j]) (inv_2s2: per return, 1 / 2 sigma_j^2)."""
     c, s = math.cos(pose[2]), math.sin(pose[2])
     total = 0.0
     for j in range(ends.shape[0]):
         lx, ly = ends[j, 0], ends[j, 1]
         ex = pose[0] + c * lx - s * ly
         ey = pose[1] + s * lx + c * ly
-        norm = math.sqrt(lx * lx + ly * ly) + 1e-12
-        ux = (c * lx - s * ly) / norm
-        uy = (s * lx + c * ly) / norm
+        ux = c * dirs[j, 0] - s * dirs[j, 1]
+        uy = s * dirs[j, 0] + c * dirs[j, 1]
         d2 = _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy)
         if d2 >= 0.0:
-            total += math.exp(-d2 * inv_2s2)
+            total += math.exp(-d2 * inv_2s2[j])
     return total
 
 
 @njit(cache=True)
-def _log_likelihood(pose, ends, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, inv_2s2, miss_d2):
+def _log_likelihood(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, inv_2s2, miss_d2):
     c, s = math.cos(pose[2]), math.sin(pose[2])
     total = 0.0
     hits = 0
@@ -83,9 +86,8 @@ def _log_likelihood(pose, ends, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, i
         lx, ly = ends[j, 0], ends[j, 1]
         ex = pose[0] + c * lx - s * ly
         ey = pose[1] + s * lx + c * ly
-        norm = math.sqrt(lx * lx + ly * ly) + 1e-12
-        ux = (c * lx - s * ly) / norm
-        uy = (s * lx + c * ly) / norm
+        ux = c * dirs[j, 0] - s * dirs[j, 1]
+        uy = s * dirs[j, 0] + c * dirs[j, 1]
         d2 = _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy)
         if d2 >= 0.0:
             hits += 1
@@ -96,7 +98,26 @@ def _log_likelihood(pose, ends, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, i
 
 
 @njit(cache=True)
-def _match_one(i, map_xy, map_p, lo, hi, pose0, ends, window, cell_m, kernel, min_p, match, grid, sums, touched, out):
+def _match_one(
+    i,
+    map_xy,
+    map_p,
+    lo,
+    hi,
+    pose0,
+    ends,
+    dirs,
+    score_inv,
+    window,
+    cell_m,
+    kernel,
+    min_p,
+    match,
+    grid,
+    sums,
+    touched,
+    out,
+):
     """Rasterise particle i's window of its map, climb the score, weigh the scan; reset the raster."""
     x0, y0 = window[0], window[1]
     nx, ny = int(window[2]), int(window[3])
@@ -125,17 +146,16 @@ def _match_one(i, map_xy, map_p, lo, hi, pose0, ends, window, cell_m, kernel, mi
         sums[slot, 0] /= sums[slot, 2]
         sums[slot, 1] /= sums[slot, 2]
     mean_xy = sums
-    step_xy, step_phi, levels, max_iter, score_inv, like_inv, miss_d2 = (
+    step_xy, step_phi, levels, max_iter, like_inv, miss_d2 = (
         match[0],
         match[1],
         int(match[2]),
         int(match[3]),
-        match[4],
         match[5],
         match[6],
     )
     pose = pose0.copy()
-    current = _score(pose, ends, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv) if used else 0.0
+    current = _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv) if used else 0.0
     if used:
         best = -1.0
         refinement = 0
@@ -161,14 +181,14 @@ def _match_one(i, map_xy, map_p, lo, hi, pose0, ends, window, cell_m, kernel, mi
                     cand[2] += step_phi
                 else:
                     cand[2] -= step_phi
-                s = _score(cand, ends, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv)
+                s = _score(cand, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv)
                 if s > current:
                     current = s
                     best_local[:] = cand
             pose[:] = best_local
             if not (current > best or refinement < levels):
                 break
-    like, hits = _log_likelihood(pose, ends, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, like_inv, miss_d2)
+    like, hits = _log_likelihood(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, like_inv, miss_d2)
     for slot in range(used):
         grid[touched[slot]] = _EMPTY
     out[i, 0], out[i, 1], out[i, 2] = pose[0], pose[1], pose[2]
@@ -178,7 +198,9 @@ def _match_one(i, map_xy, map_p, lo, hi, pose0, ends, window, cell_m, kernel, mi
 
 
 @njit(cache=True, parallel=True)
-def _match_all(map_xy, map_p, lo, hi, poses, ends, windows, cell_m, kernel, min_p, match, grids, sums, touched):
+def _match_all(
+    map_xy, map_p, lo, hi, poses, ends, dirs, score_inv, windows, cell_m, kernel, min_p, match, grids, sums, touched
+):
     n = poses.shape[0]
     workers = grids.shape[0]
     out = np.empty((n, 6))
@@ -192,6 +214,8 @@ def _match_all(map_xy, map_p, lo, hi, poses, ends, windows, cell_m, kernel, min_
                 hi[i],
                 poses[i],
                 ends,
+                dirs,
+                score_inv,
                 windows[i],
                 cell_m,
                 kernel,
@@ -240,6 +264,7 @@ def match_and_weigh(
     levels: int,
     max_iterations: int,
     score_sigma_m: float,
+    score_sigma_rad: float,
     like_sigma_m: float,
     miss_m: float,
     workspace: MatchWorkspace,
@@ -253,6 +278,7 @@ def match_and_weigh(
     n = len(poses)
     poses = np.ascontiguousarray(poses, dtype=float)
     ends = np.ascontiguousarray(ends_sensor, dtype=float)
+    rng = np.hypot(ends[:, 0], ends[:, 1])
     if len(ends) == 0:
         return poses.copy(), np.zeros(n), np.zeros(n), np.zeros(n, dtype=np.int64)
     c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
@@ -283,6 +309,8 @@ def match_and_weigh(
         np.asarray(map_hi, dtype=np.int64),
         poses,
         ends,
+        ends / np.maximum(rng, 1e-12)[:, None],
+        0.5 / (score_sigma_m**2 + (rng * score_sigma_rad) ** 2),
         windows,
         float(cell_m),
         int(kernel),

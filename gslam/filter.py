@@ -279,6 +279,9 @@ class GSlamFilter:
             levels=cfg.match_levels,
             max_iterations=cfg.match_max_iterations if climb else 0,
             score_sigma_m=cfg.match_sigma_m,
+            score_sigma_rad=(
+                cfg.match_sigma_rad if cfg.match_sigma_rad is not None else scan.geometry.angle_increment_rad
+            ),
             like_sigma_m=cfg.weight_sigma_m,
             miss_m=cfg.weight_miss_m,
             workspace=self._workspace,

@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import gzip
 import math
+import zlib
 from pathlib import Path
 
 import numpy as np
 
 from .base import ReadOptions
 from .logdata import LogData, ScanGeometry
-from .textlog import IngestError
+from .textlog import IngestError, time_problem
 
 CARMEN_NO_RETURN_M = 81.9
 """Readings at or beyond this are no return (the SICK LMS reports 81.91 m or so when nothing is hit)."""
@@ -84,7 +85,7 @@ def _open_text(path: Path) -> str:
     if raw[:2] == b"\x1f\x8b":
         try:
             raw = gzip.decompress(raw)
-        except (OSError, EOFError) as e:
+        except (OSError, EOFError, zlib.error) as e:
             raise IngestError(f"{path}: corrupt gzip data ({e})") from None
     try:
         return raw.decode("utf-8")
@@ -115,6 +116,8 @@ def read_relations(path: Path) -> np.ndarray:
             v = [float(p) for p in parts]
         except ValueError:
             raise IngestError(f"{path}:{lineno}: not a number") from None
+        if not all(math.isfinite(x) for x in v):
+            raise IngestError(f"{path}:{lineno}: non-finite value (NaN or infinity)")
         rows.append([v[0], v[1], v[2], v[3], v[7]])
     if not rows:
         raise IngestError(f"{path}: no relations")
@@ -172,6 +175,9 @@ def read_carmen(path: Path, skip_bad_lines: bool = False) -> LogData:
             if not np.isfinite(ranges).all():
                 bad(lineno, "FLASER has a non-finite range")
                 continue
+            if not all(math.isfinite(v) for v in (ox, oy, oth)) or time_problem(t):
+                bad(lineno, time_problem(t) or "FLASER has a non-finite odometry pose")
+                continue
             if (ranges < 0).any():
                 bad(lineno, f"negative range {ranges[ranges < 0][0]} m at beam {int(np.argmax(ranges < 0))}")
                 continue
@@ -192,6 +198,9 @@ def read_carmen(path: Path, skip_bad_lines: bool = False) -> LogData:
                 t = float(parts[7])
             except ValueError:
                 bad(lineno, "ODOM field is not a number")
+                continue
+            if not all(math.isfinite(v) for v in (x, y, th)) or time_problem(t):
+                bad(lineno, time_problem(t) or "ODOM has a non-finite pose")
                 continue
             odom.append((t, x, y, th, tv, rv))
             odom_source.append("ODOM")

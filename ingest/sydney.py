@@ -14,7 +14,7 @@ import numpy as np
 
 from .base import ReadOptions
 from .logdata import LogData, ScanGeometry
-from .textlog import IngestError, Table, parse_numeric_csv
+from .textlog import IngestError, Table, check_times, parse_numeric_csv
 
 SYDNEY_BEAMS = 361
 SYDNEY_GEOMETRY = ScanGeometry(
@@ -51,8 +51,24 @@ class SydneyReader:
         directory = source if source.is_dir() else source.parent
         if fmt == "sydney-text" and not (directory / "DRS.txt").exists() and (directory / "text").is_dir():
             directory = directory / "text"
+        if source.is_file():
+            _check_sydney_file(source, directory, fmt)
         reader = read_sydney_text if fmt == "sydney-text" else read_sydney_mat
         return reader(directory, options.skip_bad_lines)
+
+
+def _check_sydney_file(source: Path, directory: Path, fmt: str) -> None:
+    """A Sydney log is a directory; a file given instead must be one of the log's own files."""
+    if fmt == "sydney-text" and not (directory / "DRS.txt").exists():
+        raise IngestError(
+            f"{source}: a Sydney text log is a directory holding DRS.txt (with LASER.txt, GPS.txt), and "
+            f"{directory} has no DRS.txt; give the log's directory (or --format for another format)"
+        )
+    if fmt == "sydney-mat" and not ((directory / CARPARK_MAT).exists() or (directory / VICTORIA_DR_MAT).exists()):
+        raise IngestError(
+            f"{source}: not a known Sydney MATLAB log (expected {CARPARK_MAT}, or {VICTORIA_DR_MAT} with "
+            f"{source.name} beside it); give the log's directory (or --format for another format)"
+        )
 
 
 def _dataset_name(directory: Path) -> str:
@@ -97,7 +113,7 @@ def read_sydney_text(directory: Path, skip_bad_lines: bool = False) -> LogData:
     drs_path = directory / "DRS.txt"
     if not drs_path.exists():
         raise IngestError(f"{drs_path}: file not found (a Sydney text log needs DRS.txt)")
-    drs = parse_numeric_csv(drs_path, 3, skip_bad_lines)
+    drs = parse_numeric_csv(drs_path, 3, skip_bad_lines, time_column=0)
     _report_dropped(drs, drs_path, warnings)
     _check_times(str(drs_path), drs.rows[:, 0], warnings)
     log = LogData(
@@ -110,7 +126,7 @@ def read_sydney_text(directory: Path, skip_bad_lines: bool = False) -> LogData:
     )
     gps_path = directory / "GPS.txt"
     if gps_path.exists():
-        gps = parse_numeric_csv(gps_path, 3, skip_bad_lines)
+        gps = parse_numeric_csv(gps_path, 3, skip_bad_lines, time_column=0)
         _report_dropped(gps, gps_path, warnings)
         _check_times(str(gps_path), gps.rows[:, 0], warnings)
         log.gps = gps.rows
@@ -118,7 +134,7 @@ def read_sydney_text(directory: Path, skip_bad_lines: bool = False) -> LogData:
         warnings.append(f"{gps_path}: not present; no GPS channel")
     laser_path = directory / "LASER.txt"
     if laser_path.exists():
-        laser = parse_numeric_csv(laser_path, 1 + SYDNEY_BEAMS, skip_bad_lines)
+        laser = parse_numeric_csv(laser_path, 1 + SYDNEY_BEAMS, skip_bad_lines, time_column=0)
         _report_dropped(laser, laser_path, warnings)
         keep, ranges = _ranges(laser, laser_path, skip_bad_lines, warnings)
         log.geometry = SYDNEY_GEOMETRY
@@ -128,7 +144,7 @@ def read_sydney_text(directory: Path, skip_bad_lines: bool = False) -> LogData:
         _check_times(str(laser_path), log.scan_t_s, warnings)
         intensity_path = directory / "INTENSITY.txt"
         if intensity_path.exists():
-            inten = parse_numeric_csv(intensity_path, 1 + SYDNEY_BEAMS, skip_bad_lines)
+            inten = parse_numeric_csv(intensity_path, 1 + SYDNEY_BEAMS, skip_bad_lines, time_column=0)
             _report_dropped(inten, intensity_path, warnings)
             by_time = dict(zip(inten.rows[:, 0].tolist(), range(len(inten.rows)), strict=True))
             idx = [by_time.get(t) for t in log.scan_t_s.tolist()]
@@ -144,12 +160,12 @@ def read_sydney_text(directory: Path, skip_bad_lines: bool = False) -> LogData:
         log.landmarks = parse_numeric_csv(beacons_path, 2, skip_bad_lines).rows
     truth_path = directory / "TRUTH.txt"  # simulated logs: t, x, y, phi of the laser
     if truth_path.exists():
-        log.truth_pose = parse_numeric_csv(truth_path, 4, skip_bad_lines).rows
+        log.truth_pose = parse_numeric_csv(truth_path, 4, skip_bad_lines, time_column=0).rows
     log.warnings = warnings
     return log
 
 
-def _loadmat(path: Path) -> dict:
+def _loadmat_here(path: Path) -> dict:
     from scipy.io import loadmat
 
     try:
@@ -160,10 +176,62 @@ def _loadmat(path: Path) -> dict:
         raise IngestError(f"{path}: not a readable MATLAB file ({e})") from None
 
 
+def _loadmat_child(path: Path, conn) -> None:
+    import faulthandler
+
+    faulthandler.disable()  # a crash here is reported by the parent, in one line
+    try:
+        conn.send((True, _loadmat_here(path)))
+    except IngestError as e:
+        conn.send((False, str(e)))
+    conn.close()
+
+
+def _loadmat(path: Path) -> dict:
+    """The variables of a MATLAB file, read in a forked child: scipy's reader can crash the process
+    (segmentation fault) on some damaged files, and a crash must be one line, not the end of gslam."""
+    import multiprocessing
+
+    if "fork" not in multiprocessing.get_all_start_methods():
+        return _loadmat_here(path)
+    ctx = multiprocessing.get_context("fork")
+    receive, send = ctx.Pipe(duplex=False)
+    child = ctx.Process(target=_loadmat_child, args=(path, send), daemon=True)
+    child.start()
+    send.close()
+    try:
+        ok, payload = receive.recv()
+    except EOFError:  # the child died without an answer
+        child.join()
+        raise IngestError(
+            f"{path}: not a readable MATLAB file (the MATLAB reader crashed on it, exit {child.exitcode})"
+        ) from None
+    finally:
+        receive.close()
+    child.join()
+    if not ok:
+        raise IngestError(payload)
+    return payload
+
+
 def _var(mat: dict, path: Path, name: str) -> np.ndarray:
+    """A numeric variable of a MATLAB file; missing or not numbers: one line naming file and variable."""
     if name not in mat:
         raise IngestError(f"{path}: variable {name!r} missing")
-    return np.asarray(mat[name])
+    a = np.asarray(mat[name])
+    if a.dtype.kind not in "biuf":
+        raise IngestError(f"{path}: variable {name!r} holds {a.dtype} values, expected numbers")
+    return a
+
+
+def _columns(path: Path, **named: np.ndarray) -> np.ndarray:
+    """Equal-length vectors side by side (K, n) as floats; unequal lengths name the variables."""
+    vectors = {k: v.ravel().astype(float) for k, v in named.items()}
+    lengths = {k: len(v) for k, v in vectors.items()}
+    if len(set(lengths.values())) > 1:
+        listed = ", ".join(f"{k} {n}" for k, n in lengths.items())
+        raise IngestError(f"{path}: variables of one stream differ in length ({listed})")
+    return np.column_stack(list(vectors.values()))
 
 
 def _finite(path: Path, name: str, a: np.ndarray) -> np.ndarray:
@@ -191,17 +259,15 @@ def _read_carpark_mat(directory: Path) -> LogData:
     path = directory / CARPARK_MAT
     m = _loadmat(path)
     warnings: list[str] = []
-    t_vs = _finite(path, "Time_VS", _var(m, path, "Time_VS").ravel().astype(float))
-    ack = np.column_stack(
-        [
-            t_vs,
-            _finite(path, "Velocity", _var(m, path, "Velocity").ravel().astype(float)),
-            _finite(path, "Steering", _var(m, path, "Steering").ravel().astype(float)),
-        ]
+    ack = _columns(
+        path, Time_VS=_var(m, path, "Time_VS"), Velocity=_var(m, path, "Velocity"), Steering=_var(m, path, "Steering")
     )
-    gps = np.column_stack(
-        [_var(m, path, "TimeGPS").ravel(), _var(m, path, "GPSLon").ravel(), _var(m, path, "GPSLat").ravel()]
-    ).astype(float)
+    _finite(path, "Time_VS/Velocity/Steering", ack)
+    t_vs = ack[:, 0]
+    gps = _columns(
+        path, TimeGPS=_var(m, path, "TimeGPS"), GPSLon=_var(m, path, "GPSLon"), GPSLat=_var(m, path, "GPSLat")
+    )
+    _finite(path, "TimeGPS/GPSLon/GPSLat", gps)
     laser = _finite(path, "Laser", _var(m, path, "Laser").astype(float))
     if laser.ndim != 2 or laser.shape[1] != SYDNEY_BEAMS:
         raise IngestError(f"{path}: 'Laser' has shape {laser.shape}, expected (K, {SYDNEY_BEAMS})")
@@ -214,6 +280,7 @@ def _read_carpark_mat(directory: Path) -> LogData:
     if len(t_laser) != len(laser):
         raise IngestError(f"{path}: {len(t_laser)} laser times for {len(laser)} scans")
     for name, t in (("Time_VS", t_vs), ("TimeGPS", gps[:, 0]), ("TimeLaser", t_laser)):
+        check_times(path, name, t)
         _check_times(f"{path}:{name}", t, warnings)
     log = LogData(
         dataset=_dataset_name(directory),
@@ -241,14 +308,15 @@ def _read_victoria_mat(directory: Path, skip_bad_lines: bool) -> LogData:
     warnings: list[str] = []
     dr_path = directory / VICTORIA_DR_MAT
     dr = _loadmat(dr_path)
-    ack = np.column_stack(
-        [
-            _var(dr, dr_path, "time").ravel() / 1000.0,
-            _var(dr, dr_path, "speed").ravel(),
-            _var(dr, dr_path, "steering").ravel(),
-        ]
-    ).astype(float)
-    _finite(dr_path, "speed/steering", ack)
+    ack = _columns(
+        dr_path,
+        time=_var(dr, dr_path, "time"),
+        speed=_var(dr, dr_path, "speed"),
+        steering=_var(dr, dr_path, "steering"),
+    )
+    ack[:, 0] /= 1000.0
+    check_times(dr_path, "time", ack[:, 0])
+    _finite(dr_path, "time/speed/steering", ack)
     _check_times(str(dr_path), ack[:, 0], warnings)
     log = LogData(
         dataset=_dataset_name(directory),
@@ -262,13 +330,15 @@ def _read_victoria_mat(directory: Path, skip_bad_lines: bool) -> LogData:
     gps_path = directory / VICTORIA_GPS_MAT
     if gps_path.exists():
         g = _loadmat(gps_path)
-        log.gps = np.column_stack(
-            [
-                _var(g, gps_path, "timeGps").ravel() / 1000.0,
-                _var(g, gps_path, "Lo_m").ravel(),
-                _var(g, gps_path, "La_m").ravel(),
-            ]
-        ).astype(float)
+        log.gps = _columns(
+            gps_path,
+            timeGps=_var(g, gps_path, "timeGps"),
+            Lo_m=_var(g, gps_path, "Lo_m"),
+            La_m=_var(g, gps_path, "La_m"),
+        )
+        log.gps[:, 0] /= 1000.0
+        check_times(gps_path, "timeGps", log.gps[:, 0])
+        _finite(gps_path, "timeGps/Lo_m/La_m", log.gps)
     laser_path = directory / VICTORIA_LASER_MAT
     if laser_path.exists():
         lm = _loadmat(laser_path)
@@ -281,6 +351,7 @@ def _read_victoria_mat(directory: Path, skip_bad_lines: bool) -> LogData:
         log.geometry = SYDNEY_GEOMETRY
         log.self_return_range_m = SELF_RETURN_RANGE_M
         log.scan_t_s = _var(lm, laser_path, "TLsr").ravel().astype(float) / 1000.0
+        check_times(laser_path, "TLsr", log.scan_t_s)
         if len(log.scan_t_s) != len(raw):
             raise IngestError(f"{laser_path}: {len(log.scan_t_s)} laser times for {len(raw)} scans")
         log.scan_ranges_m = ranges

@@ -13,6 +13,25 @@ class IngestError(Exception):
     """Bad input: the message names the file and, where there is one, the line."""
 
 
+MAX_TIME_S = 9.2e9
+"""Latest time an MCAP log time holds (unsigned 64-bit nanoseconds, kept below 2^63); times are >= 0."""
+
+
+def time_problem(t_s: float) -> str | None:
+    """Why `t_s` cannot be a log time, or None when it can."""
+    if not 0.0 <= t_s <= MAX_TIME_S:
+        return f"time {t_s:g} s outside 0 to {MAX_TIME_S:g} s (MCAP log times)"
+    return None
+
+
+def check_times(path: Path, name: str, t_s: np.ndarray) -> None:
+    """Refuse an array of times (a MATLAB variable) with a time no MCAP log time can hold."""
+    bad = ~((t_s >= 0) & (t_s <= MAX_TIME_S))
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise IngestError(f"{path}: variable {name!r} index {i}: {time_problem(float(t_s[i]))}")
+
+
 @dataclass
 class Table:
     """Parsed rows, the 1-based source line of each row, and how many lines were dropped."""
@@ -23,12 +42,19 @@ class Table:
     drop_reasons: list[str] = field(default_factory=list)
 
 
-def parse_numeric_csv(path: Path, columns: int | None, skip_bad_lines: bool = False, text: str | None = None) -> Table:
+def parse_numeric_csv(
+    path: Path,
+    columns: int | None,
+    skip_bad_lines: bool = False,
+    text: str | None = None,
+    time_column: int | None = None,
+) -> Table:
     """Parse a comma-separated numeric log.
 
     Every non-empty line must have `columns` finite numbers (when `columns` is None, the first data
-    line sets the count). A malformed line raises `IngestError("file:line: why")`, or with
-    `skip_bad_lines` is dropped and counted. A file with no data line raises `IngestError`.
+    line sets the count), with a time a log time can hold in `time_column` (when given). A malformed
+    line raises `IngestError("file:line: why")`, or with `skip_bad_lines` is dropped and counted. A
+    file with no data line raises `IngestError`.
     """
     if text is None:
         try:
@@ -58,6 +84,8 @@ def parse_numeric_csv(path: Path, columns: int | None, skip_bad_lines: bool = Fa
             else:
                 if not all(math.isfinite(v) for v in values):
                     why = "non-finite value (NaN or infinity)"
+                elif time_column is not None:
+                    why = time_problem(values[time_column])
         if why is not None:
             if not skip_bad_lines:
                 raise IngestError(f"{path}:{lineno}: {why}")

@@ -21,6 +21,8 @@ from mcap.writer import CompressionType, Writer
 from mcap_protobuf.decoder import DecoderFactory
 from mcap_protobuf.schema import register_schema
 
+from .tempfiles import temporary_for
+
 NS = 1_000_000_000
 
 
@@ -35,7 +37,7 @@ class AtomicMcapWriter:
     def __init__(self, path: str | os.PathLike, profile: str = "", chunk_size: int = 1 << 20) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.tmp_path = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+        self.tmp_path = temporary_for(self.path)
         self._file = open(self.tmp_path, "wb")
         self._writer = Writer(self._file, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         self._writer.start(profile=profile, library="gslam")

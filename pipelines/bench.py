@@ -123,7 +123,7 @@ def run_bench(
                 if progress is not None:
                     progress(
                         f"{method} N {n:>2} M {m:>2} seed {seed}: {metrics['gps_mean_error_m']:.2f} m, "
-                        f"{summary.ms_per_step_filter_median:.1f} ms/step ({time.perf_counter() - t0:.0f} s)"
+                        f"{summary.ms_per_update_mean:.1f} ms per update ({time.perf_counter() - t0:.0f} s)"
                     )
                 out.unlink(missing_ok=True)
                 out.with_suffix(".rrd").unlink(missing_ok=True)

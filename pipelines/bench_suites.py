@@ -54,8 +54,9 @@ def _percentile(values: list[float], q: float) -> float:
 
 
 def run_process(input_mcap: Path, particles: int, seed: int, threads: int, workdir: Path) -> SuiteRun:
-    """`gslam process INPUT OUT --particles N --seed S --threads K` in a child process, as a user runs it
-    (result MCAP and Rerun recording written), timed whole; then `gslam eval` on the result."""
+    """`gslam process INPUT OUT --particles N --seed S [--threads K]` in a child process, as a user runs it
+    (result MCAP and Rerun recording written), timed whole; then `gslam eval` on the result. threads 0:
+    the default, every core."""
     out = workdir / f"{input_mcap.stem}_n{particles}_s{seed}_t{threads}.mcap"
     cmd = [
         sys.executable,
@@ -68,14 +69,15 @@ def run_process(input_mcap: Path, particles: int, seed: int, threads: int, workd
         str(particles),
         "--seed",
         str(seed),
-        "--threads",
-        str(threads),
     ]
+    if threads:  # 0: the default (every core)
+        cmd += ["--threads", str(threads)]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True)
     wall = time.perf_counter() - t0
     if proc.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd)} failed: {proc.stderr.strip().splitlines()[-1:]}")
+        last = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
+        raise RuntimeError(f"{' '.join(cmd)} failed: {last}")
     from .evaluate import evaluate_result, read_result, read_update_times
 
     metrics = evaluate_result(out, input_mcap)

@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import functools
 import json
-import os
 import sys
 from enum import StrEnum
 from pathlib import Path
@@ -13,6 +11,11 @@ from typing import Annotated
 import typer
 
 from gslam import __version__
+from gslam.config import FilterConfig
+from gslam.vehicle import VEHICLE_PRESETS
+
+from .clierrors import OneLineErrors, fail, guarded
+from .progress import reporting
 
 app = typer.Typer(
     name="gslam",
@@ -20,6 +23,8 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    rich_markup_mode=None,  # help text as written: "[filter]" is a word, not markup
+    cls=OneLineErrors,
 )
 
 
@@ -36,43 +41,6 @@ def main(
     ] = False,
 ) -> None:
     """G-SLAM: generative particle-filter SLAM with point maps, for MCAP logs and Rerun."""
-
-
-def fail(message: str, code: int = 2) -> None:
-    typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
-    raise typer.Exit(code)
-
-
-def guarded(fn):
-    """Turn known bad-input errors into one clear line and a non-zero exit (no traceback)."""
-
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        from ingest.textlog import IngestError
-        from pipelines.errors import InputError
-
-        try:
-            return fn(*args, **kwargs)
-        except typer.Exit:
-            raise
-        except (IngestError, InputError, FileNotFoundError, IsADirectoryError, PermissionError) as e:
-            fail(str(e))
-        except ValueError as e:
-            if os.environ.get("GSLAM_DEBUG"):
-                raise
-            fail(str(e))
-        except BrokenPipeError:  # output piped into e.g. `head`
-            sys.stderr.close()
-            raise typer.Exit(0) from None
-        except KeyboardInterrupt:
-            typer.secho("interrupted", fg=typer.colors.YELLOW, err=True)
-            raise typer.Exit(130) from None
-        except Exception as e:  # an internal error: one line unless GSLAM_DEBUG asks for the traceback
-            if os.environ.get("GSLAM_DEBUG"):
-                raise
-            fail(f"internal error: {type(e).__name__}: {e} (set GSLAM_DEBUG=1 for the traceback)", code=1)
-
-    return wrapper
 
 
 def invocation(ctx: typer.Context) -> str:
@@ -97,40 +65,10 @@ def invocation(ctx: typer.Context) -> str:
     return " ".join(parts)
 
 
-def scan_progress(bar):
-    """A `progress(done, total, step_ms)` callback for the filter that shows scans per second on `bar`."""
-    task = bar.add_task("G-SLAM", total=None, rate="")
+def check_outputs(outputs: dict, inputs: dict) -> None:
+    from .outpaths import check_outputs as check
 
-    def progress(done: int, total: int, step_ms: float) -> None:
-        if done % 5 == 0 or done == total:
-            elapsed = bar.tasks[task].elapsed or 1e-9
-            bar.update(task, completed=done, total=total, rate=f"{done / elapsed:.0f} scans/s")
-
-    return progress
-
-
-def progress_bar():
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
-
-    return Progress(
-        TextColumn("[bold]{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TextColumn("{task.fields[rate]}"),
-        TimeElapsedColumn(),
-        TextColumn("eta"),
-        TimeRemainingColumn(),
-        transient=False,
-        disable=not sys.stderr.isatty() and not os.environ.get("GSLAM_PROGRESS"),
-        console=None,
-    )
+    check(outputs, inputs)
 
 
 class Format(StrEnum):
@@ -141,14 +79,21 @@ class Format(StrEnum):
     rosbag = "rosbag"
 
 
+METHOD_NAMES = ("gslam", "fastslam1", "fastslam2", "grid", "grid-hr")  # pipelines.runner.METHODS (a test checks)
+Method = StrEnum("Method", [(m.replace("-", "_"), m) for m in METHOD_NAMES])
+Vehicle = StrEnum("Vehicle", [(v, v) for v in VEHICLE_PRESETS])
+_DEFAULTS = FilterConfig()
+
+
 @app.command()
 @guarded
 def ingest(
     source: Annotated[
         Path,
         typer.Argument(
+            metavar="SOURCE",
             help="A log directory or file (Sydney text/.mat, CARMEN .clf/.log[.gz]), or a ROS bag "
-            "(ROS 1 .bag; ROS 2 bag directory, .db3 or .mcap)."
+            "(ROS 1 .bag; ROS 2 bag directory, .db3 or .mcap).",
         ),
     ],
     output: Annotated[Path, typer.Option("-o", "--output", help="The MCAP file to write.")],
@@ -177,30 +122,30 @@ def ingest(
     import time
 
     from ingest import ingest as run_ingest
+    from ingest.carmen import relations_path_for
 
+    inputs = {"SOURCE": source}
+    if source.is_file():
+        inputs["its relations file"] = relations_path_for(source)
+    check_outputs({"-o": output}, inputs)
     t0 = time.perf_counter()
-    with progress_bar() as bar:
-        task = bar.add_task("ingest", total=None, rate="")
-
-        def progress(done: int, total: int) -> None:
-            bar.update(task, completed=done, total=total)
-
-        report = run_ingest(
+    with reporting("ingest", "messages") as (report, _):
+        result = run_ingest(
             source,
             output,
             format.value,
             dataset,
             skip_bad_lines,
-            progress,
+            report,
             scan_topic=scan_topic,
             odom_topic=odom_topic,
             base_frame=base_frame,
         )
-    for w in report.log.warnings:
+    for w in result.log.warnings:
         typer.secho(f"warning: {w}", fg=typer.colors.YELLOW, err=True)
-    counts = ", ".join(f"{k} {v}" for k, v in report.counts.items())
+    counts = ", ".join(f"{k} {v}" for k, v in result.counts.items())
     typer.echo(
-        f"wrote {report.output} ({report.log.dataset}, {report.log.source_format}) in "
+        f"wrote {result.output} ({result.log.dataset}, {result.log.source_format}) in "
         f"{time.perf_counter() - t0:.2f} s: {counts}"
     )
 
@@ -208,12 +153,17 @@ def ingest(
 @app.command()
 @guarded
 def info(
-    file: Annotated[Path, typer.Argument(help="An MCAP file.")],
+    file: Annotated[Path, typer.Argument(metavar="FILE", help="An MCAP file.")],
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Channels, message counts, schemas, start, end and duration of an MCAP file."""
+    from mcaplog.tempfiles import describe_temporary
+    from pipelines.errors import InputError
     from pipelines.inspect import mcap_info
 
+    temp = describe_temporary(file)
+    if temp is not None and file.exists():
+        raise InputError(temp.describe(file))
     data = mcap_info(file)
     if as_json:
         typer.echo(json.dumps(data, indent=2))
@@ -231,47 +181,73 @@ def run() -> None:  # pragma: no cover
     app()
 
 
-def _load_config_file(path: Path | None) -> dict:
-    if path is None:
-        return {}
-    import tomllib
-
-    try:
-        with open(path, "rb") as f:
-            return tomllib.load(f)
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{path}: config file not found") from None
-    except tomllib.TOMLDecodeError as e:
-        raise ValueError(f"{path}: not valid TOML ({e})") from None
-
-
 @app.command()
 @guarded
 def process(
     ctx: typer.Context,
-    input: Annotated[Path, typer.Argument(help="Input MCAP from `gslam ingest`.")],
-    output: Annotated[Path, typer.Argument(help="Result MCAP to write.")],
+    input: Annotated[Path, typer.Argument(metavar="INPUT", help="Input MCAP from `gslam ingest`.")],
+    output: Annotated[Path, typer.Argument(metavar="OUTPUT", help="Result MCAP to write.")],
     rrd: Annotated[
-        Path | None, typer.Option("--rrd", help="Rerun recording to write (default: OUTPUT with .rrd).")
+        Path | None,
+        typer.Option("--rrd", help="Rerun recording to write.", show_default="OUTPUT with .rrd"),
     ] = None,
     no_rrd: Annotated[bool, typer.Option("--no-rrd", help="Do not write a Rerun recording.")] = False,
-    particles: Annotated[int | None, typer.Option("--particles", "-N", help="Number of particles N.")] = None,
-    points: Annotated[int | None, typer.Option("--points", "-M", help="New points per observation M.")] = None,
-    seed: Annotated[int | None, typer.Option("--seed", help="Random seed.")] = None,
-    vehicle: Annotated[str | None, typer.Option("--vehicle", help="Vehicle preset: carpark or paper.")] = None,
+    particles: Annotated[
+        int | None,
+        typer.Option(
+            "--particles", "-N", min=1, max=4096, help="Number of particles N.", show_default=str(_DEFAULTS.particles)
+        ),
+    ] = None,
+    points: Annotated[
+        int | None,
+        typer.Option(
+            "--points",
+            "-M",
+            min=1,
+            max=1000,
+            help="New points per observation M.",
+            show_default=str(_DEFAULTS.points_per_observation),
+        ),
+    ] = None,
+    seed: Annotated[
+        int | None,
+        typer.Option("--seed", min=0, max=2**32 - 1, help="Random seed.", show_default=str(_DEFAULTS.seed)),
+    ] = None,
+    vehicle: Annotated[
+        Vehicle | None,
+        typer.Option(
+            "--vehicle",
+            help="Vehicle preset of an Ackermann (Sydney) log.",
+            show_default="the one in the input's metadata",
+        ),
+    ] = None,
     config: Annotated[
         Path | None, typer.Option("--config", help="TOML file: [filter] options and run options.")
     ] = None,
     set_: Annotated[
-        list[str] | None, typer.Option("--set", help="Filter option override, NAME=VALUE (repeatable).")
+        list[str] | None,
+        typer.Option(
+            "--set",
+            metavar="NAME=VALUE",
+            help="Filter option override, NAME=VALUE (repeatable; docs/CHOICES.md lists them).",
+        ),
     ] = None,
-    max_scans: Annotated[int | None, typer.Option("--max-scans", help="Stop after this many scans.")] = None,
+    max_scans: Annotated[
+        int | None, typer.Option("--max-scans", min=1, help="Stop after this many scans.", show_default="all")
+    ] = None,
     method: Annotated[
-        str | None,
-        typer.Option("--method", help="gslam (default), or a baseline: fastslam1, fastslam2, grid, grid-hr."),
+        Method | None,
+        typer.Option("--method", help="G-SLAM, or a baseline.", show_default="gslam"),
     ] = None,
     grid_cells: Annotated[
-        int | None, typer.Option("--grid-cells", help="Cells of the grid baselines (default 3000 / 48000).")
+        int | None,
+        typer.Option(
+            "--grid-cells",
+            min=16,
+            max=10_000_000,
+            help="Cells of the grid baselines.",
+            show_default="3000 for grid, 48000 for grid-hr",
+        ),
     ] = None,
     threads: Annotated[
         int | None,
@@ -282,59 +258,28 @@ def process(
     ] = False,
 ) -> None:
     """Run G-SLAM (or a baseline) over an input MCAP; write the result MCAP and a Rerun recording."""
-    from gslam.config import FilterConfig
+    from pipelines.options import Setting, parse_set, run_config
     from pipelines.process import process as run_process
-    from pipelines.runner import RunConfig
 
-    data = _load_config_file(config)
-    filter_opts = dict(data.pop("filter", {}))
-    for item in set_ or []:
-        if "=" not in item:
-            raise ValueError(f"--set expects NAME=VALUE, got {item!r}")
-        k, v = item.split("=", 1)
-        try:
-            filter_opts[k.strip()] = json.loads(v)
-        except json.JSONDecodeError:
-            filter_opts[k.strip()] = v
-    for k, v in (("particles", particles), ("points_per_observation", points), ("seed", seed)):
-        if v is not None:
-            filter_opts[k] = v
-    run_opts = {k: v for k, v in data.items() if k in RunConfig.RUN_OPTIONS}
-    unknown = sorted(set(data) - set(run_opts))
-    if unknown:
-        raise ValueError(f"{config}: unknown option(s) {', '.join(unknown)}")
-    if vehicle is not None:
-        run_opts["vehicle"] = vehicle
-    if max_scans is not None:
-        run_opts["max_scans"] = max_scans
-    if method is not None:
-        run_opts["method"] = method
-    if grid_cells is not None:
-        run_opts["grid_cells"] = grid_cells
-    if threads is not None:
-        run_opts["threads"] = threads
-    if occupancy:
-        run_opts["occupancy"] = True
-    cfg = RunConfig(filter=FilterConfig.from_dict(filter_opts), **run_opts)
-    from pipelines.runner import METHODS
-
-    if cfg.method not in METHODS:
-        raise ValueError(f"unknown method {cfg.method!r}; choose one of {', '.join(METHODS)}")
-    if cfg.vehicle is not None:
-        from gslam.vehicle import vehicle_preset
-
-        vehicle_preset(cfg.vehicle)
+    flags = [("particles", particles, "--particles"), ("points_per_observation", points, "--points")]
+    flags.append(("seed", seed, "--seed"))
+    filter_settings = [parse_set(item) for item in set_ or []]
+    filter_settings += [Setting(k, v, f"{flag} {v}") for k, v, flag in flags if v is not None]
+    run_flags = [
+        ("vehicle", vehicle, "--vehicle"),
+        ("max_scans", max_scans, "--max-scans"),
+        ("method", method, "--method"),
+        ("grid_cells", grid_cells, "--grid-cells"),
+        ("threads", threads, "--threads"),
+        ("occupancy", True if occupancy else None, "--occupancy"),
+    ]
+    run_settings = [Setting(k, getattr(v, "value", v), f"{flag} {v}") for k, v, flag in run_flags if v is not None]
+    cfg = run_config(config, filter_settings, run_settings)
     rrd_path = None if no_rrd else (rrd or output.with_suffix(".rrd"))
-    with progress_bar() as bar:
-        progress = scan_progress(bar)
-
-        summary = run_process(input, output, rrd_path, cfg, progress, command=invocation(ctx))
-    typer.echo(
-        f"{summary.steps} steps of {summary.scans_in_log} scans; final map {summary.final_map_points} points; "
-        f"{summary.ms_per_step_filter_median:.1f} ms per step (filter), "
-        f"{summary.ms_per_step_median:.1f} ms end to end; "
-        f"real-time factor {summary.real_time_factor:.1f}"
-    )
+    check_outputs({"OUTPUT": output, "--rrd": rrd_path}, {"INPUT": input, "--config": config})
+    with reporting("G-SLAM", "scans") as (report, _):
+        summary = run_process(input, output, rrd_path, cfg, report, command=invocation(ctx))
+    typer.echo(summary.describe())
     typer.echo(f"wrote {summary.output}")
     if summary.rrd is not None:
         typer.echo(f"wrote {summary.rrd}  (open it with: rerun {summary.rrd})")
@@ -343,20 +288,25 @@ def process(
 @app.command("eval")
 @guarded
 def evaluate(
-    result: Annotated[Path, typer.Argument(help="Result MCAP from `gslam process`.")],
+    result: Annotated[Path, typer.Argument(metavar="RESULT", help="Result MCAP from `gslam process`.")],
     reference: Annotated[
-        Path | None, typer.Option("--reference", help="Input MCAP (default: from the result's metadata).")
+        Path | None,
+        typer.Option("--reference", help="Input MCAP of the run.", show_default="the input named in the result"),
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
-    """Accuracy and speed metrics of a result (GPS error, pole map error, relations, time per step)."""
+    """Accuracy and speed metrics of a result (GPS error, pole map error, relations, time per update)."""
     from pipelines.evaluate import evaluate_result
 
     metrics = evaluate_result(result, reference)
     if as_json:
         typer.echo(json.dumps(metrics, indent=2))
         return
+    for note in metrics["notes"]:
+        typer.echo(f"note: {note}")
     for k, v in metrics.items():
+        if k == "notes":
+            continue
         shown = "n/a" if v is None else (f"{v:.4g}" if isinstance(v, float) else str(v))
         typer.echo(f"{k:<28} {shown}")
 
@@ -364,22 +314,28 @@ def evaluate(
 @app.command()
 @guarded
 def plot(
-    result: Annotated[Path, typer.Argument(help="Result MCAP from `gslam process`.")],
+    result: Annotated[Path, typer.Argument(metavar="RESULT", help="Result MCAP from `gslam process`.")],
     output: Annotated[Path, typer.Option("-o", "--output", help="PNG file to write.")],
     reference: Annotated[
-        Path | None, typer.Option("--reference", help="Input MCAP (default: from the metadata).")
+        Path | None,
+        typer.Option("--reference", help="Input MCAP of the run.", show_default="the input named in the result"),
     ] = None,
 ) -> None:
     """The map's probability with the path, GPS and poles; and the position error against time."""
+    from pipelines.evaluate import recorded_input
     from pipelines.plot import plot_result
 
+    inputs = {"RESULT": result, "--reference": reference} if reference else {"RESULT": result}
+    if reference is None:
+        inputs["INPUT (named in RESULT)"] = recorded_input(result)
+    check_outputs({"-o": output}, inputs)
     typer.echo(f"wrote {plot_result(result, output, reference)}")
 
 
 @app.command()
 @guarded
 def export(
-    result: Annotated[Path, typer.Argument(help="Result MCAP from `gslam process`.")],
+    result: Annotated[Path, typer.Argument(metavar="RESULT", help="Result MCAP from `gslam process`.")],
     tum: Annotated[Path | None, typer.Option("--tum", help="Write the final best trajectory (TUM format).")] = None,
     map_csv: Annotated[
         Path | None, typer.Option("--map", help="Write the final map as CSV (x, y, probability).")
@@ -398,9 +354,10 @@ def export(
     from pipelines.export import export_result
 
     if tum is None and map_csv is None and occupancy is None:
-        raise ValueError("nothing to export: give --tum, --map and/or --occupancy")
+        fail("nothing to export: give --tum, --map and/or --occupancy")
     if not resolution > 0:
-        raise ValueError(f"--resolution must be positive, got {resolution}")
+        fail(f"--resolution must be positive, got {resolution}")
+    check_outputs({"--tum": tum, "--map": map_csv, "--occupancy": occupancy}, {"RESULT": result})
     for path in export_result(result, tum, map_csv, occupancy, input, resolution):
         typer.echo(f"wrote {path}")
 
@@ -416,7 +373,9 @@ def bench(
             "--methods", help="Comma-separated: gslam, fastslam1, fastslam2, grid, grid-hr, or all (adds Table 4)."
         ),
     ] = "gslam",
-    seeds: Annotated[int | None, typer.Option("--seeds", help="Seeds per cell (default 3; 1 with --quick).")] = None,
+    seeds: Annotated[
+        int | None, typer.Option("--seeds", min=1, help="Seeds per cell.", show_default="3; 1 with --quick")
+    ] = None,
     data: Annotated[Path, typer.Option("--data", help="Car Park log directory (or an ingested MCAP).")] = Path(
         "../shared/datasets/carpark"
     ),
@@ -448,23 +407,29 @@ def bench(
     from pipelines.bench_suites import freiburg_section, replace_section, run_suite, speed_section
 
     if suite not in ("carpark", "freiburg", "speed"):
-        raise ValueError(f"--suite must be carpark, freiburg or speed, got {suite!r}")
+        fail(f"--suite {suite}: expected carpark, freiburg or speed")
+    if output is not None:
+        check_outputs({"-o": output}, {"--data": data, "--freiburg": freiburg})
     command = invocation(ctx)
     t0 = time.perf_counter()
     if suite != "carpark":
         logs = [freiburg / "mit-csail.clf.gz", freiburg / "intel.clf.gz"]
         for log in logs:
             if not log.exists():
-                raise FileNotFoundError(f"{log}: Freiburg log not found (--freiburg DIR)")
+                fail(f"--freiburg {freiburg}: {log.name} not found")
         echo = lambda s: typer.echo(s, err=True)  # noqa: E731
         if suite == "freiburg":
-            n_seeds = seeds if seeds is not None else 5
-            runs = run_suite("freiburg", logs, [30], list(range(n_seeds)), [0], 1, echo)
+            runs = run_suite("freiburg", logs, [30], list(range(seeds or 5)), [0], 1, echo)
             text = freiburg_section(runs, command, machine_description(), versions())
         else:
-            if not data.is_dir() and not data.exists():
-                raise FileNotFoundError(f"{data}: Car Park log not found (--data)")
-            counts = [int(k) for k in threads.split(",") if k.strip()]
+            if not data.exists():
+                fail(f"--data {data}: no such file or directory")
+            try:
+                counts = [int(k) for k in threads.split(",") if k.strip()]
+            except ValueError:
+                counts = []
+            if not counts or min(counts) < 1:
+                fail(f"--threads {threads}: expected comma-separated thread counts of at least 1")
             runs = []
             for log, ns in ((data, [8, 30]), (logs[0], [30]), (logs[1], [30])):
                 runs += run_suite("speed", [log], ns, [0], counts, 3, echo)
@@ -474,12 +439,14 @@ def bench(
         if chosen == ["all"]:
             chosen = list(METHODS)
         missing = [m for m in chosen if m not in METHODS]
-        if missing:
-            raise ValueError(f"method(s) {', '.join(missing)} not available yet; available: {', '.join(METHODS)}")
+        if missing or not chosen:
+            fail(
+                f"--methods {methods}: unknown method(s) {', '.join(missing)}; choose from {', '.join(METHODS)} or all"
+            )
         n_seeds = seeds if seeds is not None else (1 if quick else 3)
-        if n_seeds < 1:
-            raise ValueError("--seeds must be at least 1")
         grid = QUICK_GRID if quick else FULL_GRID
+        if not data.exists():
+            fail(f"--data {data}: no such file or directory")
         with tempfile.TemporaryDirectory(prefix="gslam-bench-in-") as tmp:
             if data.is_dir():
                 from ingest import ingest as run_ingest
@@ -493,9 +460,9 @@ def bench(
             )
         text = markdown_table(results, n_seeds, command, time.perf_counter() - t0)
     if output is not None:
-        from pipelines.export import _atomic_write
+        from mcaplog.tempfiles import write_atomic
 
-        _atomic_write(output, replace_section(output, suite, text))
+        write_atomic(output, replace_section(output, suite, text))
         typer.echo(f"wrote {output}")
     else:
         typer.echo(text)
@@ -507,33 +474,29 @@ def demo(
     out: Annotated[Path, typer.Option("--out", help="Directory for the simulated log and the results.")] = Path(
         "recordings/demo"
     ),
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the simulation and the filter.")] = 0,
-    particles: Annotated[int, typer.Option("--particles", "-N", help="Number of particles N.")] = 8,
-    points: Annotated[int, typer.Option("--points", "-M", help="New points per observation M.")] = 10,
+    seed: Annotated[
+        int, typer.Option("--seed", min=0, max=2**32 - 1, help="Seed of the simulation and the filter.")
+    ] = 0,
+    particles: Annotated[int, typer.Option("--particles", "-N", min=1, max=4096, help="Number of particles N.")] = 8,
+    points: Annotated[int, typer.Option("--points", "-M", min=1, max=1000, help="New points per observation M.")] = 10,
 ) -> None:
     """Simulate a Car Park-like log, then ingest, process, evaluate against the truth and plot it."""
     from pipelines.demo import run_demo
 
-    with progress_bar() as bar:
-        progress = scan_progress(bar)
-
-        run_demo(
-            out,
-            seed,
-            particles,
-            points,
-            say=bar.console.print if bar.console.is_terminal else typer.echo,
-            progress=progress,
-        )
+    if out.exists() and not out.is_dir():
+        fail(f"--out {out} is a file; give a directory")
+    with reporting("G-SLAM", "scans") as (report, say):
+        run_demo(out, seed, particles, points, say=say, progress=report)
 
 
 @app.command()
 @guarded
 def sweep(
     spec: Annotated[
-        Path, typer.Argument(help="Sweep spec (TOML): inputs, methods, particles, points, seeds, [options].")
+        Path,
+        typer.Argument(metavar="SPEC", help="Sweep spec (TOML): inputs, methods, particles, points, seeds, [options]."),
     ],
-    workers: Annotated[int, typer.Option("--workers", help="Local worker processes.")] = 2,
+    workers: Annotated[int, typer.Option("--workers", min=1, help="Local worker processes.")] = 2,
     scheduler: Annotated[
         str | None,
         typer.Option("--scheduler", envvar="DASK_SCHEDULER_ADDRESS", help="Dask scheduler, tcp://host:8786."),
@@ -544,25 +507,19 @@ def sweep(
     """Run process + eval over a grid of logs and parameters, locally or on a Dask cluster."""
     from pipelines.sweep import SweepSpec, run_sweep
 
-    if workers < 1:
-        raise ValueError("--workers must be at least 1")
     sweep_spec = SweepSpec.load(spec)
-    with progress_bar() as bar:
-        task = bar.add_task("sweep", total=None, rate="")
-
-        def progress(done: int, total: int, record: dict) -> None:
-            failed = f" (last failed: {record['task']['id']})" if record.get("status") == "failed" else ""
-            bar.update(task, completed=done, total=total, rate=failed)
-
-        report = run_sweep(sweep_spec, output, workers, scheduler, resume, progress)
+    if output.exists() and not output.is_dir():
+        fail(f"-o {output} is a file; give a directory for the results")
+    with reporting("sweep", "tasks") as (report, _):
+        result = run_sweep(sweep_spec, output, workers, scheduler, resume, report)
     where = scheduler or f"{workers} local workers"
     typer.echo(
-        f"{len(report.records)} tasks ({report.skipped} already done, {report.failed} failed) in "
-        f"{report.wall_s:.1f} s on {where}"
+        f"{len(result.records)} tasks ({result.skipped} already done, {result.failed} failed) in "
+        f"{result.wall_s:.1f} s on {where}"
     )
-    typer.echo(f"wrote {report.md_path} and {report.csv_path}")
-    if report.failed:
-        fail(f"{report.failed} of {len(report.records)} tasks failed (their errors: {report.md_path})", code=1)
+    typer.echo(f"wrote {result.md_path} and {result.csv_path}")
+    if result.failed:
+        fail(f"{result.failed} of {len(result.records)} tasks failed (their errors: {result.md_path})", code=1)
 
 
 if __name__ == "__main__":  # python -m pipelines.cli

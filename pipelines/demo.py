@@ -13,6 +13,7 @@ import numpy as np
 from gslam.config import FilterConfig
 from gslam.sim import SimConfig, SydneyLog, distance_to_obstacles, simulate_sydney_log
 from gslam.vehicle import vehicle_preset
+from mcaplog.tempfiles import temporary_for
 
 from .evaluate import evaluate_result, read_result
 from .plot import plot_result
@@ -34,7 +35,7 @@ def write_sydney_text(log: SydneyLog, directory: Path) -> Path:
         "WALLS.txt": (log.world.walls, "%.4f"),
     }
     for name, (arr, fmt) in files.items():
-        tmp = directory / f".{name}.{os.getpid()}.tmp"
+        tmp = temporary_for(directory / name)
         if name == "LASER.txt":
             fmt = ["%.3f"] + ["%.2f"] * (arr.shape[1] - 1)
         elif name == "INTENSITY.txt":
@@ -95,8 +96,8 @@ def run_demo(
         command=f"gslam demo --out {out} --seed {seed} --particles {particles} --points {points}",
     )
     say(
-        f"      {summary.steps} steps, {summary.ms_per_step_filter_median:.1f} ms per step, map "
-        f"{summary.final_map_points} points"
+        f"      {summary.steps} steps, {summary.updates} updates, {summary.ms_per_update_mean:.1f} ms per update "
+        f"(mean), map {summary.final_map_points} points"
     )
     say("[4/5] evaluating against the known truth ...")
     metrics = evaluate_result(result, input_mcap)

@@ -11,9 +11,10 @@ import numpy as np
 
 from gslam.metrics import gps_mean_error, gps_rmse_aligned, pole_map_error, relations_error
 from mcaplog import channels as ch
-from mcaplog.mcapio import McapInput
+from mcaplog.mcapio import McapInput, Message
 
 from .errors import InputError
+from .source import converted
 
 METRIC_KEYS = (
     "gps_mean_error_m",
@@ -24,6 +25,7 @@ METRIC_KEYS = (
     "relations_trans_m",
     "relations_trans_std_m",
     "relations_rot_deg",
+    "ms_per_update_mean",
     "ms_per_step_median",
     "real_time_factor",
     "final_map_points",
@@ -57,17 +59,23 @@ def read_result(path: Path) -> ResultData:
     t, stamp, online, step_ms = [], [], [], []
     trajectory = None
     map_xy, map_p = np.empty((0, 2)), np.empty(0)
-    for msg in src.messages([ch.SLAM_POSE, ch.SLAM_TRAJECTORY, ch.SLAM_MAP_FINAL, ch.SLAM_STATS]):
+
+    def read(msg: Message) -> None:
+        nonlocal trajectory, map_xy, map_p
         if msg.topic == ch.SLAM_POSE:
-            t.append(msg.t_s)
+            pose = [msg.value.pose.position.x, msg.value.pose.position.y, ch.yaw_of(msg.value.pose)]
             stamp.append(ch.t_of(msg.value.timestamp))
-            online.append([msg.value.pose.position.x, msg.value.pose.position.y, ch.yaw_of(msg.value.pose)])
+            t.append(msg.t_s)
+            online.append(pose)
         elif msg.topic == ch.SLAM_STATS:
-            step_ms.append(msg.value["step_ms"])
+            step_ms.append(float(msg.value["step_ms"]))
         elif msg.topic == ch.SLAM_TRAJECTORY:
             trajectory = ch.poses_of(msg.value)
         else:
             map_xy, map_p = ch.cloud_arrays(msg.value)
+
+    for _ in converted(src, [ch.SLAM_POSE, ch.SLAM_TRAJECTORY, ch.SLAM_MAP_FINAL, ch.SLAM_STATS], read):
+        pass
     if trajectory is None or len(trajectory) != len(t):
         raise InputError(f"{path}: no final trajectory matching the {len(t)} steps")
     return ResultData(
@@ -91,15 +99,76 @@ def read_update_times(path: Path) -> list[float]:
     ]
 
 
+def reference_truth(ref: McapInput) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+    """What an input MCAP knows of the truth: GPS (K, 3: t, x, y), poles (P, 2), relations (R, 5); None
+    where it has none."""
+    gps: list[list[float]] = []
+    found: dict[str, np.ndarray] = {}
+
+    def read(msg: Message) -> None:
+        v = msg.value
+        if msg.topic == ch.GPS:
+            gps.append([msg.t_s, v.pose.position.x, v.pose.position.y])
+        elif msg.topic == ch.LANDMARKS_TRUTH:
+            found["poles"] = np.column_stack([v["x_m"], v["y_m"]]).astype(float)
+        else:
+            cols = [v["t1_s"], v["t2_s"], v["dx_m"], v["dy_m"], v["dyaw_rad"]]
+            found["relations"] = np.column_stack(cols).astype(float)
+
+    for _ in converted(ref, [ch.GPS, ch.LANDMARKS_TRUTH, ch.RELATIONS_TRUTH], read):
+        pass
+    return (np.asarray(gps) if gps else None), found.get("poles"), found.get("relations")
+
+
 def _clean(v: Any) -> Any:
     if isinstance(v, float) and not math.isfinite(v):
         return None
     return v
 
 
+def _check_reference(reference: Path) -> McapInput:
+    """The reference must be an input MCAP (from `gslam ingest`), not a result or another file."""
+    ref = McapInput(reference)
+    try:
+        meta = ref.metadata()
+    except Exception as e:  # the mcap library raises several types for a damaged file
+        raise InputError(f"{reference}: not a readable MCAP file ({type(e).__name__}: {e})") from None
+    if "result" in meta:
+        raise InputError(
+            f"--reference {reference} is a result of `gslam process`; give the input MCAP the run read "
+            f"(from `gslam ingest`)"
+        )
+    if "dataset" not in meta:
+        raise InputError(f"--reference {reference}: no 'dataset' metadata; is it an input MCAP from `gslam ingest`?")
+    return ref
+
+
+def recorded_input(result: Path) -> Path | None:
+    """The input MCAP a result names in its metadata (None when it names none or cannot be read)."""
+    try:
+        path = McapInput(result).metadata().get("input", {}).get("path")
+    except Exception:  # an unreadable result is reported by the command that reads it
+        return None
+    return Path(path) if isinstance(path, str) and path else None
+
+
+def partial_note(meta: dict[str, Any]) -> str | None:
+    """A sentence saying the result is partial (interrupted, or cut by max_scans), else None."""
+    r = meta.get("result", {})
+    steps, total = r.get("steps"), r.get("scans_in_log")
+    of = f" of {total}" if total else ""
+    if r.get("interrupted"):
+        why = r.get("error") or "interrupted"
+        return f"partial result: the run was interrupted ({why}) after {steps}{of} scans; metrics cover those steps"
+    if r.get("max_scans") and total and steps is not None and steps < total:
+        return f"partial result: the run stopped at --max-scans after {steps}{of} scans"
+    return None
+
+
 def evaluate_result(result: Path, reference: Path | None = None) -> dict[str, Any]:
-    """All metrics, None where the data does not allow one. The reference (input MCAP) is found from
-    the result's metadata when not given."""
+    """All metrics, None where the data does not allow one, with `interrupted`, `steps` and `notes`
+    (what the figures mean for this run: partial, no GPS). The reference (input MCAP) is found from the
+    result's metadata when not given."""
     res = read_result(result)
     meta = res.metadata
     if reference is None:
@@ -107,35 +176,40 @@ def evaluate_result(result: Path, reference: Path | None = None) -> dict[str, An
         if not ref_path or not Path(ref_path).exists():
             raise InputError(f"{result}: its input {ref_path!r} is not there; pass --reference INPUT.mcap")
         reference = Path(ref_path)
-    ref = McapInput(reference)
-    gps, poles, relations = None, None, None
-    for msg in ref.messages([ch.GPS, ch.LANDMARKS_TRUTH, ch.RELATIONS_TRUTH]):
-        if msg.topic == ch.GPS:
-            gps = [] if gps is None else gps
-            gps.append([msg.t_s, msg.value.pose.position.x, msg.value.pose.position.y])
-        elif msg.topic == ch.LANDMARKS_TRUTH:
-            poles = np.column_stack([msg.value["x_m"], msg.value["y_m"]])
-        else:
-            v = msg.value
-            relations = np.column_stack([v["t1_s"], v["t2_s"], v["dx_m"], v["dy_m"], v["dyaw_rad"]])
+    ref = _check_reference(reference)
+    notes: list[str] = []
+    partial = partial_note(meta)
+    if partial:
+        notes.append(partial)
+    gps, poles, relations = reference_truth(ref)
     out: dict[str, Any] = dict.fromkeys(METRIC_KEYS)
     if gps is not None and len(res.t_s):
-        g = np.asarray(gps)
+        g = gps
         out["gps_mean_error_m"] = gps_mean_error(res.t_s, res.trajectory, g)
         out["gps_mean_error_online_m"] = gps_mean_error(res.t_s, res.online, g)
         out["gps_rmse_aligned_m"] = gps_rmse_aligned(res.t_s, res.trajectory, g)
-    if poles is not None and len(res.map_p):
+    from_gps = meta.get("initialisation", {}).get("from_gps", gps is not None)
+    if poles is not None and len(res.map_p) and not from_gps:
+        notes.append(
+            "pole map error not computed: the run did not start from GPS, so its map is not in the frame of "
+            "the surveyed poles"
+        )
+    elif poles is not None and len(res.map_p):
         err, n = pole_map_error(res.map_xy, res.map_p, poles)
         out["pole_map_error_m"] = err
         out["poles_within_1m"] = n
+    if gps is None and relations is None and poles is None:
+        notes.append("no ground truth in the reference (GPS, poles or relations): only speed and map size")
     if relations is not None and len(res.t_s):
         rel = relations_error(res.stamp_s, res.trajectory, relations)
         for k in ("relations_trans_m", "relations_trans_std_m", "relations_rot_deg"):
             out[k] = rel[k]
     r = meta["result"]
+    out["ms_per_update_mean"] = r.get("ms_per_update_mean")
     out["ms_per_step_median"] = r.get("ms_per_step_filter_median")
     out["real_time_factor"] = r.get("real_time_factor")
     out["final_map_points"] = r.get("final_map_points")
     out["particles"] = meta["config"]["filter"]["particles"]
     out["points_per_observation"] = meta["config"]["filter"]["points_per_observation"]
-    return {k: _clean(v) for k, v in out.items()}
+    cleaned = {k: _clean(v) for k, v in out.items()}
+    return {"interrupted": bool(r.get("interrupted")), "steps": r.get("steps"), **cleaned, "notes": notes}

@@ -3,24 +3,13 @@ as a map_server map (PGM + YAML)."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 
+from mcaplog.tempfiles import write_atomic
+
 from .evaluate import read_result
-
-
-def _atomic_write(path: Path, content: str | bytes) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    if isinstance(content, bytes):
-        tmp.write_bytes(content)
-    else:
-        tmp.write_text(content)
-    os.replace(tmp, path)
-    return path
 
 
 def tum_text(stamp_s: np.ndarray, poses: np.ndarray) -> str:
@@ -64,9 +53,9 @@ def export_result(
         for i in range(1, len(stamps)):  # over steps, once
             if stamps[i] <= stamps[i - 1]:
                 stamps[i] = stamps[i - 1] + 1e-6
-        written.append(_atomic_write(tum, tum_text(stamps, res.trajectory)))
+        written.append(write_atomic(tum, tum_text(stamps, res.trajectory)))
     if map_csv is not None:
-        written.append(_atomic_write(map_csv, map_csv_text(res.map_xy, res.map_p)))
+        written.append(write_atomic(map_csv, map_csv_text(res.map_xy, res.map_p)))
     if occupancy_yaml is not None:
         from .navmap import grid_from_result, write_map_server
 

@@ -123,10 +123,10 @@ def map_yaml_text(grid: OccupancyGrid, image_name: str) -> str:
 
 def write_map_server(grid: OccupancyGrid, yaml_path: Path) -> list[Path]:
     """`yaml_path` and the PGM beside it (same name, .pgm), each written atomically."""
-    from .export import _atomic_write
+    from mcaplog.tempfiles import write_atomic
 
     yaml_path = Path(yaml_path)
     pgm_path = yaml_path.with_suffix(".pgm")
     cells = grid.spec.width * grid.spec.height
-    pgm = _atomic_write(pgm_path, pgm_bytes(grid, f"gslam occupancy grid, {grid.spec.resolution_m:g} m, {cells} cells"))
-    return [pgm, _atomic_write(yaml_path, map_yaml_text(grid, pgm_path.name))]
+    pgm = write_atomic(pgm_path, pgm_bytes(grid, f"gslam occupancy grid, {grid.spec.resolution_m:g} m, {cells} cells"))
+    return [pgm, write_atomic(yaml_path, map_yaml_text(grid, pgm_path.name))]

@@ -13,6 +13,7 @@ from gslam.filter import SlamFilter
 from gslam.scan import ScanGeometry, transform_points
 from mcaplog import channels as ch
 from mcaplog.mcapio import AtomicMcapWriter, to_ns
+from mcaplog.tempfiles import temporary_for
 
 from .runner import Step
 
@@ -131,7 +132,7 @@ class RerunResultWriter:
         self.rr = rr
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+        self.tmp = temporary_for(self.path)
         self.rec = rr.RecordingStream(app_id)
         self.rec.save(str(self.tmp), default_blueprint=self.blueprint())
         self.geometry = geometry

@@ -9,13 +9,36 @@ from pathlib import Path
 import numpy as np
 
 from gslam.metrics import interpolate_positions
-from mcaplog import channels as ch
 from mcaplog.mcapio import McapInput
+from mcaplog.tempfiles import temporary_for
 
-from .evaluate import read_result
+from .evaluate import read_result, reference_truth
+
+
+def _legend_below(ax, ncols: int) -> None:
+    """The axes' legend under its x label, outside the data."""
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), ncols=ncols, fontsize=9, frameon=False, markerscale=2)
 
 
 def plot_result(result: Path, out: Path, reference: Path | None = None) -> Path:
+    """Draw the result's figure and write it to `out` (PNG, atomically)."""
+    import matplotlib.pyplot as plt
+
+    fig = result_figure(result, reference)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = temporary_for(out)
+    try:
+        fig.savefig(tmp, dpi=110, format="png")
+        os.replace(tmp, out)
+    finally:
+        plt.close(fig)
+        tmp.unlink(missing_ok=True)
+    return out
+
+
+def result_figure(result: Path, reference: Path | None = None):
+    """The figure of `plot_result` (a matplotlib Figure; the caller closes it)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -25,15 +48,10 @@ def plot_result(result: Path, out: Path, reference: Path | None = None) -> Path:
     ref_path = reference or Path(res.metadata.get("input", {}).get("path", ""))
     gps = poles = None
     if ref_path and Path(ref_path).exists():
-        g, p = [], None
-        for msg in McapInput(ref_path).messages([ch.GPS, ch.LANDMARKS_TRUTH]):
-            if msg.topic == ch.GPS:
-                g.append([msg.t_s, msg.value.pose.position.x, msg.value.pose.position.y])
-            else:
-                p = np.column_stack([msg.value["x_m"], msg.value["y_m"]])
-        gps = np.asarray(g) if g else None
-        poles = p
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(14, 6.5), gridspec_kw={"width_ratios": [1.4, 1]})
+        gps, poles, _ = reference_truth(McapInput(ref_path))
+    # Constrained layout keeps titles, labels, the colour bar and the legends (below the axes, off the
+    # data) inside the figure.
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(14, 7.5), gridspec_kw={"width_ratios": [1.4, 1]}, layout="constrained")
     order = np.argsort(res.map_p)
     sc = ax.scatter(
         res.map_xy[order, 0],
@@ -54,7 +72,7 @@ def plot_result(result: Path, out: Path, reference: Path | None = None) -> Path:
     ax.set_ylabel("north [m]")
     cfg = res.metadata["config"]["filter"]
     ax.set_title(f"{res.metadata['input'].get('dataset', '')}: N {cfg['particles']}, M {cfg['points_per_observation']}")
-    ax.legend(loc="upper right", fontsize=8)
+    _legend_below(ax, ncols=4)
     if gps is not None:
         t0 = res.t_s[0]
         for traj, name in ((res.trajectory, "final best path"), (res.online, "online estimate")):
@@ -63,17 +81,12 @@ def plot_result(result: Path, out: Path, reference: Path | None = None) -> Path:
             ax2.plot(gps[inside, 0] - t0, err, label=f"{name} (mean {err.mean():.2f} m)")
         ax2.set_xlabel("time [s]")
         ax2.set_ylabel("distance to GPS [m]")
-        ax2.legend()
+        ax2.set_title("position error against GPS")
+        _legend_below(ax2, ncols=2)
         ax2.grid(alpha=0.3)
     else:
         ax2.plot(res.t_s - res.t_s[0], res.step_ms)
         ax2.set_xlabel("time [s]")
         ax2.set_ylabel("step time [ms]")
-    fig.tight_layout()
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.stem}.{os.getpid()}.tmp.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, out)
-    return out
+        ax2.set_title("filter time per step (no GPS to compare with)")
+    return fig

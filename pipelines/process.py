@@ -26,6 +26,12 @@ class ProcessSummary:
     ms_per_step_median: float
     ms_per_step_filter_median: float
     ms_per_step_filter_mean: float
+    updates: int
+    ms_per_update_mean: float
+    """Filter time per updating step (mean): with the travel schedule most steps only predict, so the
+    median step is a prediction; this is the cost of the steps that weigh, match and update the maps."""
+    ms_per_step_mean: float
+    """End-to-end time per step (mean), MCAP and Rerun writing included."""
     wall_s: float
     log_duration_s: float
     interrupted: bool
@@ -35,6 +41,15 @@ class ProcessSummary:
     @property
     def real_time_factor(self) -> float:
         return self.log_duration_s / self.wall_s if self.wall_s > 0 else float("nan")
+
+    def describe(self) -> str:
+        """One line for the user: steps, updates, map size, time per update and per step, real-time factor."""
+        return (
+            f"{self.steps} steps of {self.scans_in_log} scans, {self.updates} updates; final map "
+            f"{self.final_map_points} points; {self.ms_per_update_mean:.1f} ms per update (filter, mean), "
+            f"{self.ms_per_step_mean:.1f} ms per step end to end (mean); "
+            f"real-time factor {self.real_time_factor:.1f}"
+        )
 
 
 def peak_rss_mb() -> float:
@@ -92,6 +107,7 @@ def process(
             "pose": None if runner.initial_pose is None else runner.initial_pose.tolist(),
             "t_s": runner.t_init_s,
             "heading_window_s": cfg.init_heading_window_s,
+            "from_gps": runner.initialised_from_gps,
         },
     }
     mcap_out = McapResultWriter(output_path, metadata, cfg.map_snapshot_every)
@@ -108,7 +124,7 @@ def process(
     step_ms: list[float] = []
     filter_ms: list[float] = []
     scan_indices: list[int] = []
-    updates = 0
+    update_ms: list[float] = []
     interrupted = False
     error: BaseException | None = None
     t_start = time.perf_counter()
@@ -124,15 +140,13 @@ def process(
             t_prev = now
             filter_ms.append(st.step_ms)
             scan_indices.append(st.event.index)
-            updates += st.result.updated
+            if st.result.updated:
+                update_ms.append(st.step_ms)
             first_t = st.event.t_s if first_t is None else first_t
             last_t = st.event.t_s
             if progress is not None:
                 progress(st.event.index + 1, total, st.step_ms)
-    except KeyboardInterrupt as e:
-        interrupted = True
-        error = e
-    except Exception as e:
+    except (KeyboardInterrupt, Exception) as e:  # SIGINT, SIGTERM (signals.Stopped) or an error
         interrupted = True
         error = e
     wall = time.perf_counter() - t_start
@@ -144,6 +158,9 @@ def process(
         ms_per_step_median=float(np.median(step_ms)) if step_ms else float("nan"),
         ms_per_step_filter_median=float(np.median(filter_ms)) if filter_ms else float("nan"),
         ms_per_step_filter_mean=float(np.mean(filter_ms)) if filter_ms else float("nan"),
+        updates=len(update_ms),
+        ms_per_update_mean=float(np.mean(update_ms)) if update_ms else float("nan"),
+        ms_per_step_mean=float(np.mean(step_ms)) if step_ms else float("nan"),
         wall_s=wall,
         log_duration_s=(last_t - first_t) if first_t is not None else 0.0,
         interrupted=interrupted,
@@ -152,12 +169,16 @@ def process(
     )
     result_meta = {
         "steps": summary.steps,
+        "scans_in_log": log.scan_count,
+        "max_scans": cfg.max_scans,
         "interrupted": interrupted,
         "error": None if error is None else repr(error),
         "ms_per_step_median": summary.ms_per_step_median,
         "ms_per_step_filter_median": summary.ms_per_step_filter_median,
         "ms_per_step_filter_mean": summary.ms_per_step_filter_mean,
-        "updates": int(updates),
+        "updates": summary.updates,
+        "ms_per_update_mean": summary.ms_per_update_mean,
+        "ms_per_step_mean": summary.ms_per_step_mean,
         "wall_s": wall,
         "log_duration_s": summary.log_duration_s,
         "real_time_factor": summary.real_time_factor,
@@ -178,5 +199,7 @@ def process(
             rrd_out.abort()
         raise
     if error is not None:
+        written = " and ".join(str(p) for p in (output_path, rrd_path) if p is not None)
+        error.add_note(f"wrote {written} with the {summary.steps} steps done, marked interrupted")
         raise error
     return summary

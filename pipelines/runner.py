@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import time
 from collections.abc import Iterator
@@ -10,18 +11,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gslam.config import FilterConfig
+from gslam.config import FilterConfig, check_fields
 from gslam.fastslam import FastSlamConfig, FastSlamFilter
 from gslam.filter import GSlamFilter, SlamFilter, StepResult
 from gslam.grid import GridConfig, GridSlam
 from gslam.initialisation import fit_initial_heading
 from gslam.motion import apply_odometry, integrate_ackermann, odometry_delta
 from gslam.scan import Scan, ScanGeometry
-from gslam.vehicle import AckermannVehicle, vehicle_preset
+from gslam.vehicle import VEHICLE_PRESETS, AckermannVehicle, vehicle_preset
 
 from .errors import InputError
 from .mount import BaseFrameView
 from .source import ControlEvent, GpsEvent, InputLog, OdomEvent, ScanEvent
+
+METHODS = ("gslam", "fastslam1", "fastslam2", "grid", "grid-hr")
 
 
 @dataclass
@@ -62,6 +65,25 @@ class RunConfig:
         "occupancy",
         "occupancy_resolution_m",
     )
+    LIMITS = {
+        "init_heading_window_s": (0.0, 3600.0, False),
+        "max_scans": (1, math.inf, True),
+        "grid_cells": (16, 10_000_000, True),
+        "laser_yaw_offset_rad": (-math.pi, math.pi, True),
+    }
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Every run option checked by type and range (as FilterConfig's), method and vehicle by name."""
+        if not isinstance(self.filter, FilterConfig):
+            raise ValueError(f"filter must be a FilterConfig, got {type(self.filter).__name__}")
+        check_fields(self, self.LIMITS, skip=("filter",))
+        if self.method not in METHODS:
+            raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
+        if self.vehicle is not None and self.vehicle not in VEHICLE_PRESETS:
+            raise ValueError(f"vehicle must be one of {', '.join(VEHICLE_PRESETS)}, got {self.vehicle!r}")
 
     def as_dict(self) -> dict:
         return {"filter": self.filter.as_dict(), **{k: getattr(self, k) for k in self.RUN_OPTIONS}}
@@ -75,9 +97,6 @@ class Step:
     step_ms: float
     laser_pose: np.ndarray
     """The best particle's laser pose (where the scan was taken)."""
-
-
-METHODS = ("gslam", "fastslam1", "fastslam2", "grid", "grid-hr")
 
 
 def make_filter(cfg: RunConfig, initial_pose: np.ndarray, self_return_range_m: float = 0.0) -> SlamFilter:
@@ -122,6 +141,13 @@ class SlamRunner:
         self.vehicle: AckermannVehicle | None = None
         if log.motion_model == "ackermann":
             self.vehicle = vehicle_preset(cfg.vehicle or log.meta["vehicle"].get("preset", "carpark"))
+        if cfg.vehicle is not None and self.vehicle is None:
+            raise InputError(
+                f"{log.path}: vehicle {cfg.vehicle!r} given, but this log has {log.motion_model} poses, not an "
+                f"Ackermann vehicle's controls; the vehicle preset applies to Sydney logs only (drop --vehicle)"
+            )
+        self.initialised_from_gps = False
+        """Whether the initial pose was fitted to GPS (the map is then in the GPS and survey frame)."""
         self.initial_pose, self.t_init_s = self._initial_pose()
         self.min_range_m = cfg.filter.min_range_m if cfg.filter.min_range_m is not None else log.self_return_range_m
         self.filter = make_filter(
@@ -139,6 +165,7 @@ class SlamRunner:
         if len(controls) == 0:
             raise InputError(f"{self.log.path}: no odometry in the first seconds; cannot start the filter")
         if len(gps) >= 3:
+            self.initialised_from_gps = True
             return fit_initial_heading(controls, gps, self.vehicle, self.cfg.init_heading_window_s), float(gps[0, 0])
         return np.zeros(3), float(controls[0, 0])
 

@@ -14,10 +14,10 @@ import hashlib
 import io
 import itertools
 import json
+import multiprocessing
 import os
 import statistics
 import time
-import tomllib
 import traceback
 from collections.abc import Callable, Iterable
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from gslam import __version__
+from mcaplog.tempfiles import write_atomic
 
 METHODS = ("gslam",)
 SPEC_KEYS = {"inputs", "methods", "particles", "points", "seeds", "options", "keep_results", "rrd"}
@@ -49,36 +50,56 @@ class SweepSpec:
 
     @classmethod
     def load(cls, path: Path) -> SweepSpec:
-        try:
-            data = tomllib.loads(Path(path).read_text())
-        except FileNotFoundError:
-            raise FileNotFoundError(f"{path}: sweep spec not found") from None
-        except tomllib.TOMLDecodeError as e:
-            raise ValueError(f"{path}: not valid TOML ({e})") from None
+        """Read and check a spec: every value is checked as the filter option it becomes, and a bad
+        one is refused naming the file and line (no task is started)."""
+        from .errors import OptionError
+        from .options import Setting, filter_config, load_toml, where_in_toml
+
+        data, text = load_toml(path, "sweep spec")
         unknown = sorted(set(data) - SPEC_KEYS)
         if unknown:
-            raise ValueError(f"{path}: unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(SPEC_KEYS))}")
+            where = where_in_toml(path, text, None, unknown[0])
+            raise OptionError(f"{where}: unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(SPEC_KEYS))}")
         if "inputs" not in data or not data["inputs"]:
-            raise ValueError(f"{path}: 'inputs' (a list of MCAP paths) is required")
+            raise OptionError(f"{path}: 'inputs' (a list of MCAP paths) is required")
+        options = data.get("options", {})
+        if not isinstance(options, dict):
+            raise OptionError(f"{where_in_toml(path, text, None, 'options')}: 'options' must be an [options] table")
 
         def as_list(v):
             return v if isinstance(v, list) else [v]
 
-        base = Path(path).parent
-        spec = cls(
-            inputs=[str(p if Path(p).is_absolute() else (base / p)) for p in as_list(data["inputs"])],
-            methods=as_list(data.get("methods", ["gslam"])),
-            particles=[int(v) for v in as_list(data.get("particles", [8]))],
-            points=[int(v) for v in as_list(data.get("points", [10]))],
-            seeds=[int(v) for v in as_list(data.get("seeds", [0]))],
-            options={k: as_list(v) for k, v in data.get("options", {}).items()},
-            keep_results=bool(data.get("keep_results", False)),
-            rrd=bool(data.get("rrd", False)),
-        )
-        bad = [m for m in spec.methods if m not in METHODS]
+        def where(key: str, table: str | None = None) -> str:
+            return where_in_toml(path, text, table, key)
+
+        checks = [("particles", "particles"), ("points", "points_per_observation"), ("seeds", "seed")]
+        for key, option in checks:
+            filter_config([Setting(option, v, where(key)) for v in as_list(data.get(key, []))])
+        for key, values in options.items():
+            filter_config([Setting(key, v, where(key, "options")) for v in as_list(values)])
+        for key in ("keep_results", "rrd"):
+            if not isinstance(data.get(key, False), bool):
+                raise OptionError(f"{where(key)}: {key} must be true or false, got {data[key]!r}")
+        inputs = as_list(data["inputs"])
+        if not all(isinstance(p, str) for p in inputs):
+            raise OptionError(f"{where('inputs')}: inputs must be a list of paths (strings), got {data['inputs']!r}")
+        bad = [m for m in as_list(data.get("methods", [])) if m not in METHODS]
         if bad:
-            raise ValueError(f"{path}: method(s) {', '.join(bad)} not available; available: {', '.join(METHODS)}")
-        return spec
+            raise OptionError(
+                f"{where('methods')}: method(s) {', '.join(map(str, bad))} not available; "
+                f"available: {', '.join(METHODS)}"
+            )
+        base = Path(path).parent
+        return cls(
+            inputs=[str(p if Path(p).is_absolute() else (base / p)) for p in inputs],
+            methods=as_list(data.get("methods", ["gslam"])),
+            particles=as_list(data.get("particles", [8])),
+            points=as_list(data.get("points", [10])),
+            seeds=as_list(data.get("seeds", [0])),
+            options={k: as_list(v) for k, v in options.items()},
+            keep_results=data.get("keep_results", False),
+            rrd=data.get("rrd", False),
+        )
 
     def tasks(self) -> list[dict[str, Any]]:
         names = sorted(self.options)
@@ -115,12 +136,6 @@ def task_id(task: dict[str, Any]) -> str:
     digest = hashlib.sha1(key.encode()).hexdigest()[:8]
     cell = f"n{task['particles']}_m{task['points']}_s{task['seed']}"
     return f"{Path(task['input']).stem}__{task['method']}__{cell}__{digest}"
-
-
-def _write_atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def run_task(task: dict[str, Any], results_dir: str) -> dict[str, Any]:
@@ -162,7 +177,7 @@ def run_task(task: dict[str, Any], results_dir: str) -> dict[str, Any]:
         if not task.get("keep_results"):
             result_path.unlink(missing_ok=True)
         (out_dir / "log.txt").write_text(log.getvalue() + record.get("traceback", ""))
-    _write_atomic(out_dir / "metrics.json", json.dumps(record, indent=2))
+    write_atomic(out_dir / "metrics.json", json.dumps(record, indent=2))
     return record
 
 
@@ -196,7 +211,9 @@ def executor_for(workers: int, scheduler: str | None):
         finally:
             client.close()
     else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
+        # Fresh interpreters, not forks: the filter's compiled loops run on a thread pool, and a fork of a
+        # process whose pool has started inherits locks that no thread will release.
+        with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
             yield pool
 
 
@@ -253,7 +270,7 @@ def run_sweep(
     order = {t["id"]: i for i, t in enumerate(tasks)}
     records.sort(key=lambda r: order.get(r["task"]["id"], 0))
     csv_path, md_path = write_tables(records, results_dir, spec)
-    _write_atomic(
+    write_atomic(
         results_dir / "sweep.json",
         json.dumps(
             {
@@ -325,7 +342,7 @@ def write_tables(records: list[dict[str, Any]], results_dir: Path, spec: SweepSp
         writer.writeheader()
         writer.writerows(rows)
     csv_path = results_dir / "results.csv"
-    _write_atomic(csv_path, buf.getvalue())
+    write_atomic(csv_path, buf.getvalue())
 
     def fmt(row, k, digits=3):
         mean, sd = row[f"{k}_mean"], row[f"{k}_std"]
@@ -351,5 +368,5 @@ def write_tables(records: list[dict[str, Any]], results_dir: Path, spec: SweepSp
     if failed:
         lines += ["", "## Failed tasks", ""] + [f"- `{r['task']['id']}`: {r.get('error', '?')}" for r in failed]
     md_path = results_dir / "results.md"
-    _write_atomic(md_path, "\n".join(lines) + "\n")
+    write_atomic(md_path, "\n".join(lines) + "\n")
     return csv_path, md_path

@@ -42,3 +42,27 @@ def mit_mcap(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("mit") / "mit.mcap"
     ingest(require(MIT), out)
     return out
+
+
+def pytest_collection_modifyitems(config, items):
+    """Tests marked `fuzz` (the long profile) run only when `-m` selects them."""
+    if "fuzz" in (config.getoption("markexpr") or ""):
+        return
+    skip = pytest.mark.skip(reason="the 10 000-case fuzz profile runs with `python -m pytest -m fuzz`")
+    for item in items:
+        if "fuzz" in item.keywords:
+            item.add_marker(skip)
+
+
+def pytest_terminal_summary(terminalreporter):
+    """Counts of the fuzz suite (cases, refused with a clear error, read), when it ran."""
+    import sys
+
+    fuzz = sys.modules.get("test_fuzz") or sys.modules.get("tests.test_fuzz")
+    if fuzz is None or not fuzz.COUNTS:
+        return
+    terminalreporter.section("fuzz")
+    for name, c in fuzz.COUNTS.items():
+        terminalreporter.write_line(f"{name}: {c['cases']} cases, {c['refused']} refused, {c['read']} read")
+    total = sum(c["cases"] for c in fuzz.COUNTS.values())
+    terminalreporter.write_line(f"total: {total} cases")

@@ -52,6 +52,7 @@ def _match(maps, poses, pts, cfg=None, **over):
         levels=cfg.match_levels,
         max_iterations=cfg.match_max_iterations,
         score_sigma_m=cfg.match_sigma_m,
+        score_sigma_rad=0.0,
         like_sigma_m=cfg.weight_sigma_m,
         miss_m=cfg.weight_miss_m,
         workspace=MatchWorkspace(over.pop("workers", 1)),
