@@ -91,6 +91,9 @@ class GSlamFilter:
             self.poses[:, 2] = wrap_angle(self.poses[:, 2] + self.rng.standard_normal(n) * cfg.initial_sigma_phi_rad)
         self.weights = np.full(n, 1.0 / n)
         self.maps: list[PointMap] = [PointMap.empty()] * n  # one shared empty map (copy-on-write)
+        self._layout: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        """When every map is a slice of one buffer (after a compiled update): (xy, p, lo, hi), particle i's
+        map being xy[lo[i]:hi[i]]; the matcher and the update then read the buffer without copying it."""
         self.tree = AncestryTree()
         self.steps = 0
         self._last_update_pose: np.ndarray | None = None
@@ -150,13 +153,14 @@ class GSlamFilter:
                 sum(len(m) for m in self.maps),
                 0,
             )
-        layout = distinct_maps(self.maps)
+        layout = self._layout if self._layout is not None else distinct_maps(self.maps)
         matched, matched_log_like = self._match_and_weigh(scan, layout)
         if self.compiled_update:
             log_like = matched_log_like / (cfg.weight_gain * n) if len(layout[1]) else np.zeros(n)
             map_points_total = self._update_maps_compiled(scan, layout)
         else:
             log_like, map_points_total = self._update_maps_numpy(scan, matched_log_like)
+            self._layout = None
         # 6. Weights, effective sample size, resampling (RSR).
         self.weights, ess, parents = reweight_and_resample(self.weights, log_like, cfg.resample_threshold, self.rng)
         best = self.best_particle()
@@ -176,6 +180,9 @@ class GSlamFilter:
         self.tree.record(scan.t_s, self.poses)
         if parents is not None:
             self.poses, self.maps, self.weights = continue_from_parents(parents, self.poses, self.maps, self.tree)
+            if self._layout is not None:
+                xy, p, lo, hi = self._layout
+                self._layout = (xy, p, lo[parents], hi[parents])
             result.resampled = True
         self._last_update_pose = self.poses[self.best_particle()].copy()
         self._filled = self.poses.copy()
@@ -214,6 +221,7 @@ class GSlamFilter:
             workspace=self._update_workspace,
         )
         self.maps = [PointMap(out_xy[a:b], out_p[a:b]) for a, b in bounds]
+        self._layout = (out_xy, out_p, bounds[:, 0].copy(), bounds[:, 1].copy())
         return int((bounds[:, 1] - bounds[:, 0]).sum())
 
     def _update_maps_numpy(self, scan: Scan, matched_log_like: np.ndarray) -> tuple[np.ndarray, int]:

@@ -141,7 +141,12 @@ class RerunResultWriter:
         self.bearings = geometry.bearings_rad
         self.stats: dict[str, list[float]] = {k: [] for k in ("scan", "time", "ess", "map", "ms")}
         self.online: list[np.ndarray] = []
+        self.pending_scans: list[np.ndarray] = []
+        self.pending_particles: list[np.ndarray] = []
         self.finished = False
+        # Colours and sizes of the per-step points, once for the whole recording.
+        self.rec.log("world/scan", rr.Points2D.from_fields(colors=[[255, 60, 200]], radii=0.06), static=True)
+        self.rec.log("world/particles", rr.Points2D.from_fields(colors=[[255, 140, 0]], radii=0.12), static=True)
         if gps is not None and len(gps):
             self.rec.log("world/gps", rr.LineStrips2D([gps[:, 1:3]], colors=[[40, 200, 40]], radii=0.08), static=True)
         if landmarks is not None and len(landmarks):
@@ -172,18 +177,18 @@ class RerunResultWriter:
             collapse_panels=True,
         )
 
+    FLUSH_EVERY = 200
+    """Steps whose scans and particles are sent to the recording together, as columns (one `log` call
+    per step cost more than the filter on long logs)."""
+
     def step(self, st: Step, flt: SlamFilter) -> None:
-        rr, rec, r = self.rr, self.rec, st.result
-        rec.set_time("scan", sequence=st.event.index)
-        rec.set_time("time", duration=st.event.t_s - self.t0_s)
+        r = st.result
         ranges = st.event.ranges_m
         ok = np.isfinite(ranges) & (ranges < self.geometry.max_range_m)
         pts = np.column_stack([ranges[ok] * np.cos(self.bearings[ok]), ranges[ok] * np.sin(self.bearings[ok])])
-        rec.log("world/scan", rr.Points2D(transform_points(st.laser_pose, pts), colors=[[255, 60, 200]], radii=0.06))
-        rec.log("world/particles", rr.Points2D(r.poses[:, :2], colors=[[255, 140, 0]], radii=0.12))
+        self.pending_scans.append(transform_points(st.laser_pose, pts))
+        self.pending_particles.append(r.poses[:, :2].copy())
         self.online.append(r.best_pose[:2].copy())
-        if self.snapshot_every and st.event.index % self.snapshot_every == 0:
-            self._log_map(*flt.map_points(r.best))
         for key, value in (
             ("scan", st.event.index),
             ("time", st.event.t_s - self.t0_s),
@@ -192,6 +197,28 @@ class RerunResultWriter:
             ("ms", st.step_ms),
         ):
             self.stats[key].append(value)
+        if self.snapshot_every and st.event.index % self.snapshot_every == 0:
+            self._flush()
+            self.rec.set_time("scan", sequence=st.event.index)
+            self.rec.set_time("time", duration=st.event.t_s - self.t0_s)
+            self._log_map(*flt.map_points(r.best))
+        if len(self.pending_scans) >= self.FLUSH_EVERY:
+            self._flush()
+
+    def _flush(self) -> None:
+        """Send the steps not yet sent: the scan end points and the particles, one row per step."""
+        n = len(self.pending_scans)
+        if n == 0:
+            return
+        rr = self.rr
+        idx = [
+            rr.TimeColumn("scan", sequence=self.stats["scan"][-n:]),
+            rr.TimeColumn("time", duration=self.stats["time"][-n:]),
+        ]
+        for path, rows in (("world/scan", self.pending_scans), ("world/particles", self.pending_particles)):
+            columns = rr.Points2D.columns(positions=np.concatenate(rows)).partition([len(a) for a in rows])
+            self.rec.send_columns(path, indexes=idx, columns=columns)
+        self.pending_scans, self.pending_particles = [], []
 
     def _log_map(self, xy: np.ndarray, p: np.ndarray) -> None:
         self.rec.log("world/map", self.rr.Points2D(xy, colors=probability_colors(p), radii=0.07))
@@ -200,6 +227,7 @@ class RerunResultWriter:
         if self.finished:
             return self.path
         rr, rec = self.rr, self.rec
+        self._flush()
         if self.stats["scan"]:
             idx = [
                 rr.TimeColumn("scan", sequence=self.stats["scan"]),

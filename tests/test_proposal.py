@@ -124,7 +124,7 @@ def test_a_wall_is_not_matched_from_behind_a_parallel_wall():
     up = np.pi / 2  # heading +y
     poses = np.array([[0.0, 0.0, up], [0.0, 0.05, up]])
     _, s, _, _ = _match([m, m], poses, pts, max_iterations=0, kernel=0)
-    assert s[0] > 0.9 * len(pts)
+    assert s[0] > 0.8 * len(pts)  # each return within 2.5 cm of its cell's point
     assert s[1] < 0.1 * len(pts)
 
 
