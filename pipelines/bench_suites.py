@@ -6,6 +6,7 @@ Car Park tables, the Freiburg table and the speed table are regenerated independ
 
 from __future__ import annotations
 
+import os
 import re
 import statistics
 import subprocess
@@ -203,8 +204,9 @@ def speed_section(runs: list[SuiteRun], command: str, machine: str, software: st
             else f"{m.get('gps_mean_error_m') or float('nan'):.2f} m (GPS)"
         )
         gm = GMAPPING_REFERENCE.get(log, {}).get("wall_s") if n == 30 else None
+        shown = k or f"{os.cpu_count()} (default)"
         lines.append(
-            f"| {log} | {n} | {k} | {wall:.1f} | {statistics.median(upd):.1f} / {statistics.median(p90):.1f} "
+            f"| {log} | {n} | {shown} | {wall:.1f} | {statistics.median(upd):.1f} / {statistics.median(p90):.1f} "
             f"| {statistics.median(r.update_ratio for r in sel):.2f} | {max(r.peak_mb for r in sel):.0f} | {err_s} "
             f"| {gm if gm else '-'} | {f'{gm / wall:.2f}' if gm else '-'} |"
         )

@@ -396,7 +396,6 @@ def bench(
     freiburg: Annotated[
         Path, typer.Option("--freiburg", help="Directory with the Freiburg CARMEN logs (freiburg and speed suites).")
     ] = Path("../shared/datasets/freiburg"),
-    threads: Annotated[str, typer.Option("--threads", help="speed suite: comma-separated thread counts.")] = "1,2",
 ) -> None:
     """Benchmarks into docs/BENCHMARKS.md: the paper's Tables 3 and 4 on the Car Park log (beside the paper's
     figures), the Freiburg indoor logs (beside GMapping), and speed."""
@@ -424,14 +423,11 @@ def bench(
         else:
             if not data.exists():
                 fail(f"--data {data}: no such file or directory")
-            try:
-                counts = [int(k) for k in threads.split(",") if k.strip()]
-            except ValueError:
-                counts = []
-            if not counts or min(counts) < 1:
-                fail(f"--threads {threads}: expected comma-separated thread counts of at least 1")
+            # Every core (the default), and one thread for the scaling; N 8 / 30 / 100 on the Car Park for
+            # the growth in N; the Freiburg logs at N 30, as GMapping was measured.
+            jobs = [(data, [8, 30, 100], [0]), (data, [30], [1]), (logs[0], [30], [0]), (logs[1], [30], [0, 1])]
             runs = []
-            for log, ns in ((data, [8, 30]), (logs[0], [30]), (logs[1], [30])):
+            for log, ns, counts in jobs:
                 runs += run_suite("speed", [log], ns, [0], counts, 3, echo)
             text = speed_section(runs, command, machine_description(), versions(), 3)
     else:
