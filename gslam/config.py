@@ -113,7 +113,7 @@ class FilterConfig:
     """"motion": sample the motion model (the paper); "scan_match": sample the motion model, then refine
     each particle's pose by hill climbing a likelihood field of the scan over the particle's own point
     map (GMapping's scan matcher, on points instead of a grid), then sample around the match."""
-    match_sigma_m: float = 0.1
+    match_sigma_m: float = 0.05
     """Distance scale of the matcher's score exp(-d^2 / 2 sigma^2) at short range (the width grows with the
     range: match_sigma_rad). GMapping's exp(-d^2 / 0.05) is sigma 0.158 m over a 1-cell search."""
     match_sigma_rad: float | None = None

@@ -123,8 +123,9 @@ def test_a_wall_is_not_matched_from_behind_a_parallel_wall():
     pts = np.column_stack([np.full(21, 2.0), np.linspace(-1, 1, 21)])  # sensor frame: x ahead, wall at 2 m
     up = np.pi / 2  # heading +y
     poses = np.array([[0.0, 0.0, up], [0.0, 0.05, up]])
-    _, s, _, _ = _match([m, m], poses, pts, max_iterations=0, kernel=0)
-    assert s[0] > 0.8 * len(pts)  # each return within 2.5 cm of its cell's point
+    # The score's width pinned at 0.1 m: the test is about which cell is matched, not how sharply.
+    _, s, _, _ = _match([m, m], poses, pts, max_iterations=0, kernel=0, score_sigma_m=0.1)
+    assert s[0] > 0.8 * len(pts)  # each return within a cell (5 cm) of its cell's point
     assert s[1] < 0.1 * len(pts)
 
 
