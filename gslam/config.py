@@ -142,8 +142,10 @@ class FilterConfig:
     match_min_score: float = 0.0
     """A match counts when its score exceeds this fraction of the returns used; otherwise the
     particle keeps its motion-model sample (GMapping minimumScore 0)."""
-    proposal_sigma_xy_m: float = 0.01
-    proposal_sigma_phi_rad: float = math.radians(0.1)
+    proposal_sigma_xy_m: float = 0.0
+    proposal_sigma_phi_rad: float = 0.0
+    """Gaussian noise added to a matched pose (sampling around the match). 0: the particle takes the
+    matched pose, as GMapping's implementation does; the particles differ by their motion samples."""
 
     # Open point 7: when to update.
     update_schedule: UpdateSchedule = "travel"
