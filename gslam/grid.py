@@ -12,7 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import distance_transform_edt
 
 from .filter import Predictor, StepResult
 from .resampling import continue_from_parents, reweight_and_resample
@@ -91,6 +90,8 @@ class GridSlam:
         occupied = grid > 0
         if not occupied.any():
             return np.full(grid.shape, np.inf)
+        from scipy.ndimage import distance_transform_edt  # only the grid baseline needs it
+
         return distance_transform_edt(~occupied) * self.cfg.cell_m
 
     def _log_likelihood(self, i: int, pts: np.ndarray, field: np.ndarray) -> float:

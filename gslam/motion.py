@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 
 from .vehicle import AckermannVehicle
 
@@ -61,27 +64,42 @@ def integrate_ackermann(
     n = poses.shape[0]
     if len(controls) == 0:
         return poses
+    controls = np.asarray(controls, dtype=float)
+    # The intervals of the zero-order hold: sample k holds from max(t_k, t_start) to min(t_k+1, t_end).
+    t0 = np.maximum(controls[:, 0], t_start_s)
+    t1 = np.minimum(np.append(controls[1:, 0], t_end_s), t_end_s)
+    dt = t1 - t0
+    held = dt > 0
+    dt, speed, steer = dt[held], controls[held, 1], controls[held, 2]
+    k = len(dt)
+    if k == 0:
+        return poses
     noisy = rng is not None and (speed_sigma_mps > 0 or speed_sigma_rel > 0 or steering_sigma_rad > 0)
-    if noisy and not per_sample:
-        e_v = rng.standard_normal(n)
-        e_s = rng.standard_normal(n)
-    for k in range(len(controls)):
-        t0 = max(controls[k, 0], t_start_s)
-        t1 = controls[k + 1, 0] if k + 1 < len(controls) else t_end_s
-        t1 = min(t1, t_end_s)
-        dt = t1 - t0
-        if dt <= 0:
-            continue
-        v = np.full(n, controls[k, 1])
-        s = np.full(n, controls[k, 2])
-        if noisy:
-            if per_sample:
-                e_v = rng.standard_normal(n)
-                e_s = rng.standard_normal(n)
-            v = v + e_v * np.sqrt(speed_sigma_mps**2 + (speed_sigma_rel * v) ** 2)
-            s = s + e_s * steering_sigma_rad
-        poses = ackermann_step(poses, v, s, dt, vehicle)
+    v = np.repeat(speed[:, None], n, axis=1)
+    s = np.repeat(steer[:, None], n, axis=1)
+    if noisy:
+        # Drawn in the order of a loop over the samples (speed, then steering, n each), or once.
+        e = rng.standard_normal((k, 2, n)) if per_sample else np.broadcast_to(rng.standard_normal((2, n)), (k, 2, n))
+        v = v + e[:, 0] * np.sqrt(speed_sigma_mps**2 + (speed_sigma_rel * v) ** 2)
+        s = s + e[:, 1] * steering_sigma_rad
+    L, H = vehicle.wheelbase_m, vehicle.encoder_offset_m
+    _ackermann_chain(poses, dt, v, s, L, H, vehicle.laser_x_m, vehicle.laser_y_m)
     return poses
+
+
+@njit(cache=True)
+def _ackermann_chain(poses, dt, v, s, L, H, a, b):  # pragma: no cover - compiled
+    """ackermann_step applied for every held sample k (rows of v, s) in turn, in place."""
+    for k in range(dt.shape[0]):
+        for i in range(poses.shape[0]):
+            tan_s = math.tan(s[k, i])
+            vc = v[k, i] / (1.0 - tan_s * H / L)
+            phi = poses[i, 2]
+            c, sn = math.cos(phi), math.sin(phi)
+            yaw_rate = vc / L * tan_s
+            poses[i, 0] += dt[k] * (vc * c - yaw_rate * (a * sn + b * c))
+            poses[i, 1] += dt[k] * (vc * sn + yaw_rate * (a * c - b * sn))
+            poses[i, 2] = (phi + dt[k] * yaw_rate + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def odometry_delta(prev: np.ndarray, cur: np.ndarray) -> tuple[float, float, float]:

@@ -9,12 +9,15 @@ pruning and density control are vectorised over particles, points and beams.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .config import FilterConfig
 from .scan import Scan, inverse_measure, measure
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 _CELL_BITS = 20  # per axis: |x| / cell_size < 2^19 (131 km at 0.25 m)
 _OWNER_SHIFT = 2 * _CELL_BITS
@@ -83,6 +86,8 @@ class PointMap:
     @property
     def tree(self) -> cKDTree | None:
         if self._tree is None and len(self.p):
+            from scipy.spatial import cKDTree  # imported here: only the KD-tree readings need it
+
             self._tree = cKDTree(self.xy)
         return self._tree
 

@@ -77,6 +77,10 @@ class AtomicMcapWriter:
         """Write a protobuf message (a Foxglove schema) on `topic` at `log_time_ns`."""
         self._add(self._proto_channel(topic, message), topic, log_time_ns, message.SerializeToString())
 
+    def write_proto_bytes(self, topic: str, message_type: type, data: bytes, log_time_ns: int) -> None:
+        """Write an already serialised protobuf message of `message_type` on `topic`."""
+        self._add(self._proto_channel(topic, message_type()), topic, log_time_ns, data)
+
     def write_json(
         self, topic: str, schema_name: str, schema: dict[str, Any], obj: dict[str, Any], log_time_ns: int
     ) -> None:

@@ -58,7 +58,8 @@ class McapResultWriter:
         w = self.writer
         w.write_proto(ch.SLAM_POSE, ch.pose_in_frame(st.event.stamp_s, *r.best_pose, ch.MAP_FRAME), ns)
         self.steps_written += 1  # the trajectory in finish() covers exactly the poses written
-        w.write_proto(ch.SLAM_PARTICLES, ch.poses_in_frame(st.event.stamp_s, r.poses, ch.MAP_FRAME), ns)
+        particles = ch.poses_in_frame_bytes(st.event.stamp_s, r.poses, ch.MAP_FRAME)
+        w.write_proto_bytes(ch.SLAM_PARTICLES, ch.PosesInFrame, particles, ns)
         w.write_json(
             ch.SLAM_STATS,
             "gslam.StepStats",
@@ -90,7 +91,8 @@ class McapResultWriter:
         t_last = float(times[-1]) if len(times) else 0.0
         xy, p = flt.map_points(best)
         self.writer.write_proto(ch.SLAM_MAP_FINAL, ch.point_cloud(t_last, xy, p), ns)
-        self.writer.write_proto(ch.SLAM_TRAJECTORY, ch.poses_in_frame(t_last, traj, ch.MAP_FRAME), ns)
+        trajectory = ch.poses_in_frame_bytes(t_last, traj, ch.MAP_FRAME)
+        self.writer.write_proto_bytes(ch.SLAM_TRAJECTORY, ch.PosesInFrame, trajectory, ns)
         if hasattr(flt, "landmarks"):
             mean, cov = flt.landmarks(best)
             self.writer.write_json(
