@@ -60,18 +60,25 @@ def _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy):
     return best
 
 
+@njit(cache=True, inline="always")
+def _return_d2(pose, c, s, ends, dirs, j, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy):
+    """_best_d2 of return j (end point and beam direction in the sensor frame) seen from `pose`
+    (c, s: cos and sin of its heading)."""
+    lx, ly = ends[j, 0], ends[j, 1]
+    ex = pose[0] + c * lx - s * ly
+    ey = pose[1] + s * lx + c * ly
+    ux = c * dirs[j, 0] - s * dirs[j, 1]
+    uy = s * dirs[j, 0] + c * dirs[j, 1]
+    return _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy)
+
+
 @njit(cache=True)
 def _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, inv_2s2):
     """Sum over returns j of exp(-d_j^2 inv_2s2[j]) (inv_2s2: per return, 1 / 2 sigma_j^2)."""
     c, s = math.cos(pose[2]), math.sin(pose[2])
     total = 0.0
     for j in range(ends.shape[0]):
-        lx, ly = ends[j, 0], ends[j, 1]
-        ex = pose[0] + c * lx - s * ly
-        ey = pose[1] + s * lx + c * ly
-        ux = c * dirs[j, 0] - s * dirs[j, 1]
-        uy = s * dirs[j, 0] + c * dirs[j, 1]
-        d2 = _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy)
+        d2 = _return_d2(pose, c, s, ends, dirs, j, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy)
         if d2 >= 0.0:
             total += math.exp(-d2 * inv_2s2[j])
     return total
@@ -83,12 +90,7 @@ def _log_likelihood(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean
     total = 0.0
     hits = 0
     for j in range(ends.shape[0]):
-        lx, ly = ends[j, 0], ends[j, 1]
-        ex = pose[0] + c * lx - s * ly
-        ey = pose[1] + s * lx + c * ly
-        ux = c * dirs[j, 0] - s * dirs[j, 1]
-        uy = s * dirs[j, 0] + c * dirs[j, 1]
-        d2 = _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy)
+        d2 = _return_d2(pose, c, s, ends, dirs, j, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy)
         if d2 >= 0.0:
             hits += 1
             total -= min(d2, miss_d2) * inv_2s2
