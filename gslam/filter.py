@@ -65,6 +65,21 @@ class SlamFilter(Protocol):
     def map_points(self, particle: int) -> tuple[np.ndarray, np.ndarray]: ...
 
 
+def map_update_options(cfg: FilterConfig) -> dict[str, float]:
+    """The options of `gslam.mapupdate.update_maps` (steps 2 to 4, compiled) taken from the config."""
+    return {
+        "range_sigma_m": cfg.range_sigma_m,
+        "bearing_sigma_rad": cfg.bearing_sigma_rad,
+        "hit_sigma_m": cfg.hit_sigma_m,
+        "hit_ratio": cfg.hit_ratio,
+        "free_ratio": cfg.free_ratio,
+        "prune_threshold": cfg.prune_threshold,
+        "cell_size_m": cfg.cell_size_m,
+        "prior_p0": cfg.prior_p0,
+        "max_points_per_cell": cfg.max_points_per_cell,
+    }
+
+
 class GSlamFilter:
     """N particles, each a pose, a pose history (shared ancestry tree) and a point map."""
 
@@ -209,16 +224,8 @@ class GSlamFilter:
             geom.angle_increment_rad,
             geom.max_range_m,
             noise,
-            range_sigma_m=cfg.range_sigma_m,
-            bearing_sigma_rad=cfg.bearing_sigma_rad,
-            hit_sigma_m=cfg.hit_sigma_m,
-            hit_ratio=cfg.hit_ratio,
-            free_ratio=cfg.free_ratio,
-            prune_threshold=cfg.prune_threshold,
-            cell_size_m=cfg.cell_size_m,
-            prior_p0=cfg.prior_p0,
-            max_points_per_cell=cfg.max_points_per_cell,
             workspace=self._update_workspace,
+            **map_update_options(cfg),
         )
         self.maps = [PointMap(out_xy[a:b], out_p[a:b]) for a, b in bounds]
         self._layout = (out_xy, out_p, bounds[:, 0].copy(), bounds[:, 1].copy())

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from gslam.config import FilterConfig
-from gslam.filter import GSlamFilter
+from gslam.filter import GSlamFilter, map_update_options
 from gslam.mapupdate import UpdateWorkspace, update_maps
 from gslam.scan import Scan, ScanGeometry
 
@@ -30,16 +30,8 @@ def _update(xy, p, pose, scan, cfg, noise=None, workers=1):
         g.angle_increment_rad,
         g.max_range_m,
         noise,
-        range_sigma_m=cfg.range_sigma_m,
-        bearing_sigma_rad=cfg.bearing_sigma_rad,
-        hit_sigma_m=cfg.hit_sigma_m,
-        hit_ratio=cfg.hit_ratio,
-        free_ratio=cfg.free_ratio,
-        prune_threshold=cfg.prune_threshold,
-        cell_size_m=cfg.cell_size_m,
-        prior_p0=cfg.prior_p0,
-        max_points_per_cell=cfg.max_points_per_cell,
         workspace=UpdateWorkspace(workers, cfg.max_points_per_cell),
+        **map_update_options(cfg),
     )
 
 
