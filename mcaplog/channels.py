@@ -172,15 +172,6 @@ def pose_in_frame(t_s: float, x: float, y: float, theta: float, frame_id: str) -
     return msg
 
 
-def poses_in_frame(t_s: float, poses: np.ndarray, frame_id: str) -> PosesInFrame:
-    """poses: (K, 3) array of x, y, heading."""
-    msg = PosesInFrame(frame_id=frame_id)
-    msg.timestamp.CopyFrom(timestamp(t_s))
-    for x, y, th in np.asarray(poses, dtype=float):
-        _set_pose(msg.poses.add(), x, y, th)
-    return msg
-
-
 def _pose_record_layout() -> np.ndarray:
     """The wire bytes of one PosesInFrame.poses element with every field present (proto3 readers take
     explicit zeros as the defaults): tags and lengths filled, the 7 doubles left zero. Field numbers are
@@ -204,8 +195,8 @@ _POSE_DOUBLES = (5, 14, 23, 34, 43, 52, 61)  # offsets of position x, y, z and o
 
 
 def poses_in_frame_bytes(t_s: float, poses: np.ndarray, frame_id: str) -> bytes:
-    """The serialised `poses_in_frame(t_s, poses, frame_id)`, encoded with numpy for all poses at once
-    (the message objects cost more than the filter on long logs). Decodes to an equal message."""
+    """A serialised foxglove.PosesInFrame of `poses` ((K, 3): x, y, heading), encoded with numpy for all
+    poses at once (building the message objects pose by pose cost more than the filter on long logs)."""
     poses = np.asarray(poses, dtype=float).reshape(-1, 3)
     head = PosesInFrame(frame_id=frame_id)
     head.timestamp.CopyFrom(timestamp(t_s))
