@@ -116,19 +116,28 @@ class FilterConfig:
     each particle's pose by hill climbing a likelihood field of the scan over the particle's own point
     map (GMapping's scan matcher, on points instead of a grid), then sample around the match."""
     match_sigma_m: float = 0.05
-    """Distance scale of the matcher's score exp(-d^2 / 2 sigma^2) at short range (the width grows with the
-    range: match_sigma_rad). GMapping's exp(-d^2 / 0.05) is sigma 0.158 m over a 1-cell search."""
-    match_sigma_rad: float | None = None
-    """Angular part of the score's width: a return at range r is scored with sigma^2 = match_sigma_m^2 +
-    (r match_sigma_rad)^2, the spacing of the map's points along a surface at that range. None: the
-    sensor's angle between beams (from the input)."""
+    """Distance scale of the matcher's score exp(-d^2 / 2 sigma^2). GMapping's exp(-d^2 / 0.05) is sigma
+    0.158 m over a 1-cell search of a grid whose cells keep the mean of many hits."""
+    match_sigma_rad: float | None = 0.0
+    """Angular part of the score's width for a return scored point to point (no line found, see
+    match_line_pair_m): sigma^2 = match_sigma_m^2 + (r match_sigma_rad)^2, the spacing of the map's
+    points along a surface seen at range r. None: the sensor's angle between beams (from the input).
+    0 (default): one width for every return (the sensor's angle measured: intel 0.046 m against 0.044,
+    docs/CHOICES.md)."""
     match_cell_m: float = 0.05
     """Cell of the raster the matcher builds from each particle's map points near the scan; a cell
     keeps the mean of its points (GMapping's map resolution, delta 0.05 m)."""
-    match_kernel: int = 2
-    """Cells searched either side of an end point's cell for the nearest occupied cell (2: within
-    about 0.1 m, the spacing of the map's points; GMapping searches 1 cell of its denser grid). 1 cell
-    is 1.4x faster and as precise on intel, but broke a loop of mit-csail at one seed in five."""
+    match_kernel: int = 1
+    """Cells searched either side of an end point's cell for the map (GMapping's kernelSize 1: within
+    0.05 to 0.1 m). With point-to-point distances it took 2 cells (the spacing of the map's points) for
+    mit-csail to close its loops at every seed; with point-to-line distances 1 cell holds them and is
+    1.4x faster (docs/CHOICES.md)."""
+    match_line_pair_m: float = 0.2
+    """Point to line: when the two nearest cell means found for a return lie at most this far apart
+    (neighbouring samples of one surface: twice the map's point spacing, cell_size_m), the return's
+    distance is taken across the line through them instead of to the nearest of them (PL-ICP, Censi
+    2008), so it does not depend on where the return falls between the map's samples. 0: point to point
+    everywhere."""
     match_min_p: float = 0.5
     """Map points with at least this probability take part in matching and weighing."""
     match_step_xy_m: float = 0.05

@@ -8,11 +8,14 @@ GMapping's scan matcher (Grisetti, Stachniss & Burgard 2007; openslam_gmapping `
   (`cell_m`); each occupied cell keeps the mean of its points, as GMapping's cells keep the mean of
   their hits. The window is local to the scan, so the work does not grow with the map.
 - The score of a pose is sum_j exp(-d_j^2 / 2 sigma_j^2), d_j the distance from return j's end point to
-  the nearest cell mean among the (2k+1)^2 cells around it (k = `kernel`) whose neighbour one cell back
-  along the beam is free (so a wall is not matched from its far side). The width grows with the
-  return's range r_j: sigma_j^2 = sigma_s^2 + (r_j sigma_a)^2, sigma_a the sensor's angle between beams
-  by default, because the map samples a surface at range r only every r x (angle between beams): a far
-  return between two of its points is that far from the nearest even at the true pose.
+  the map among the (2k+1)^2 cells around it (k = `kernel`), counting only cells whose neighbour one
+  cell back along the beam is free (so a wall is not matched from its far side). When the two nearest
+  cell means lie within `line_pair_m` of each other (neighbouring samples of one surface), d_j is the
+  distance across the line through them (point to line, as PL-ICP, Censi 2008); otherwise it is the
+  distance to the nearest mean. A point-to-line distance does not depend on where the return falls
+  between the map's samples; a point-to-point one does, so those returns may be scored with a width
+  that grows with range, sigma_j^2 = sigma_s^2 + (r_j sigma_a)^2 (the map samples a surface at range r
+  every r x the angle between beams); line returns are scored with sigma_s.
 - The pose climbs that score from the motion sample: one step forwards and backwards in x, y and phi,
   move to the best while it improves, halve the steps when it does not, `levels` times.
 - The log-likelihood of the scan at the matched pose is sum_j -d_j^2 / 2 sigma_l^2, with d_j = `miss_m`
@@ -33,13 +36,17 @@ _EMPTY = -1
 
 
 @njit(cache=True, inline="always")
-def _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy):
-    """Squared distance from (ex, ey) to the nearest usable cell mean, or -1 when none is found."""
+def _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2):
+    """(squared distance from (ex, ey) to the map, True when it is taken across the line through the two
+    nearest usable cell means) or (-1, False) when no usable cell is found."""
     cx = int(math.floor((ex - x0) / cell_m))
     cy = int(math.floor((ey - y0) / cell_m))
     fx = -int(math.floor(ux * 1.41421356 + 0.5))  # one cell back towards the sensor
     fy = -int(math.floor(uy * 1.41421356 + 0.5))
     best = -1.0
+    second = -1.0
+    k1 = 0
+    k2 = 0
     for ix in range(cx - kernel, cx + kernel + 1):
         if ix < 0 or ix >= nx:
             continue
@@ -56,12 +63,24 @@ def _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy):
             dy = ey - mean_xy[k, 1]
             d2 = dx * dx + dy * dy
             if best < 0.0 or d2 < best:
-                best = d2
-    return best
+                second, k2 = best, k1
+                best, k1 = d2, k
+            elif second < 0.0 or d2 < second:
+                second, k2 = d2, k
+    if pair_d2 > 0.0 and second >= 0.0:
+        # point to line: the two nearest means, when close enough to be neighbouring samples of one
+        # surface, define its local direction; the distance is taken across it (PL-ICP, Censi 2008)
+        tx = mean_xy[k2, 0] - mean_xy[k1, 0]
+        ty = mean_xy[k2, 1] - mean_xy[k1, 1]
+        t2 = tx * tx + ty * ty
+        if 0.0 < t2 <= pair_d2:
+            cross = (ex - mean_xy[k1, 0]) * ty - (ey - mean_xy[k1, 1]) * tx
+            return cross * cross / t2, True
+    return best, False
 
 
 @njit(cache=True, inline="always")
-def _return_d2(pose, c, s, ends, dirs, j, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy):
+def _return_d2(pose, c, s, ends, dirs, j, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2):
     """_best_d2 of return j (end point and beam direction in the sensor frame) seen from `pose`
     (c, s: cos and sin of its heading)."""
     lx, ly = ends[j, 0], ends[j, 1]
@@ -69,28 +88,29 @@ def _return_d2(pose, c, s, ends, dirs, j, x0, y0, nx, ny, cell_m, kernel, grid, 
     ey = pose[1] + s * lx + c * ly
     ux = c * dirs[j, 0] - s * dirs[j, 1]
     uy = s * dirs[j, 0] + c * dirs[j, 1]
-    return _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy)
+    return _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2)
 
 
 @njit(cache=True)
-def _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, inv_2s2):
-    """Sum over returns j of exp(-d_j^2 inv_2s2[j]) (inv_2s2: per return, 1 / 2 sigma_j^2)."""
+def _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, inv_2s2, pair_d2, inv_line):
+    """Sum over returns j of exp(-d_j^2 w_j), w_j = inv_line for a point-to-line distance, else inv_2s2[j]
+    (1 / 2 sigma_j^2 of return j)."""
     c, s = math.cos(pose[2]), math.sin(pose[2])
     total = 0.0
     for j in range(ends.shape[0]):
-        d2 = _return_d2(pose, c, s, ends, dirs, j, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy)
+        d2, line = _return_d2(pose, c, s, ends, dirs, j, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2)
         if d2 >= 0.0:
-            total += math.exp(-d2 * inv_2s2[j])
+            total += math.exp(-d2 * (inv_line if line else inv_2s2[j]))
     return total
 
 
 @njit(cache=True)
-def _log_likelihood(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, inv_2s2, miss_d2):
+def _log_likelihood(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, inv_2s2, miss_d2, pair_d2):
     c, s = math.cos(pose[2]), math.sin(pose[2])
     total = 0.0
     hits = 0
     for j in range(ends.shape[0]):
-        d2 = _return_d2(pose, c, s, ends, dirs, j, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy)
+        d2, _ = _return_d2(pose, c, s, ends, dirs, j, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2)
         if d2 >= 0.0:
             hits += 1
             total -= min(d2, miss_d2) * inv_2s2
@@ -156,8 +176,10 @@ def _match_one(
         match[5],
         match[6],
     )
+    pair_d2 = match[7]
+    inv_line = match[8]
     pose = pose0.copy()
-    current = _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv) if used else 0.0
+    current = _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line) if used else 0.0
     if used:
         best = -1.0
         refinement = 0
@@ -183,14 +205,14 @@ def _match_one(
                     cand[2] += step_phi
                 else:
                     cand[2] -= step_phi
-                s = _score(cand, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv)
+                s = _score(cand, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line)
                 if s > current:
                     current = s
                     best_local[:] = cand
             pose[:] = best_local
             if not (current > best or refinement < levels):
                 break
-    like, hits = _log_likelihood(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, like_inv, miss_d2)
+    like, hits = _log_likelihood(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, like_inv, miss_d2, pair_d2)
     for slot in range(used):
         grid[touched[slot]] = _EMPTY
     out[i, 0], out[i, 1], out[i, 2] = pose[0], pose[1], pose[2]
@@ -269,6 +291,7 @@ def match_and_weigh(
     score_sigma_rad: float,
     like_sigma_m: float,
     miss_m: float,
+    line_pair_m: float = 0.0,
     workspace: MatchWorkspace,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Match the scan end points `ends_sensor` (K, 2) against each particle's map and weigh it there.
@@ -302,6 +325,8 @@ def match_and_weigh(
             0.5 / score_sigma_m**2,
             0.5 / like_sigma_m**2,
             miss_m**2,
+            line_pair_m**2,
+            0.5 / score_sigma_m**2,
         ]
     )
     out = _match_all(

@@ -299,6 +299,7 @@ class GSlamFilter:
             ),
             like_sigma_m=cfg.weight_sigma_m,
             miss_m=cfg.weight_miss_m,
+            line_pair_m=cfg.match_line_pair_m,
             workspace=self._workspace,
         )
         if not climb:
