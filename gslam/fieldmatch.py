@@ -179,7 +179,11 @@ def _match_one(
     pair_d2 = match[7]
     inv_line = match[8]
     pose = pose0.copy()
-    current = _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line) if used else 0.0
+    current = (
+        _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line)
+        if used
+        else 0.0
+    )
     if used:
         best = -1.0
         refinement = 0
@@ -205,14 +209,18 @@ def _match_one(
                     cand[2] += step_phi
                 else:
                     cand[2] -= step_phi
-                s = _score(cand, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line)
+                s = _score(
+                    cand, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line
+                )
                 if s > current:
                     current = s
                     best_local[:] = cand
             pose[:] = best_local
             if not (current > best or refinement < levels):
                 break
-    like, hits = _log_likelihood(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, like_inv, miss_d2, pair_d2)
+    like, hits = _log_likelihood(
+        pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, like_inv, miss_d2, pair_d2
+    )
     for slot in range(used):
         grid[touched[slot]] = _EMPTY
     out[i, 0], out[i, 1], out[i, 2] = pose[0], pose[1], pose[2]
