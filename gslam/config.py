@@ -122,7 +122,7 @@ class FilterConfig:
     """Angular part of the score's width for a return scored point to point (no line found, see
     match_line_pair_m): sigma^2 = match_sigma_m^2 + (r match_sigma_rad)^2, the spacing of the map's
     points along a surface seen at range r. None: the sensor's angle between beams (from the input).
-    0 (default): one width for every return (the sensor's angle measured: intel 0.046 m against 0.044,
+    0 (default): one width for every return (the sensor's angle measured: intel 0.046 m against 0.043,
     docs/CHOICES.md)."""
     match_cell_m: float = 0.05
     """Cell of the raster the matcher builds from each particle's map points near the scan; a cell
