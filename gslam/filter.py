@@ -106,6 +106,7 @@ class GSlamFilter:
             self.poses[:, 2] = wrap_angle(self.poses[:, 2] + self.rng.standard_normal(n) * cfg.initial_sigma_phi_rad)
         self.weights = np.full(n, 1.0 / n)
         self.maps: list[PointMap] = [PointMap.empty()] * n  # one shared empty map (copy-on-write)
+        self._points_total = 0  # points in all the maps (they change only at updates)
         self._layout: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         """When every map is a slice of one buffer (after a compiled update): (xy, p, lo, hi), particle i's
         map being xy[lo[i]:hi[i]]; the matcher and the update then read the buffer without copying it."""
@@ -165,7 +166,7 @@ class GSlamFilter:
                 best,
                 recorded[best].copy(),
                 len(self.maps[best]),
-                sum(len(m) for m in self.maps),
+                self._points_total,
                 0,
             )
         layout = self._layout if self._layout is not None else distinct_maps(self.maps)
@@ -202,6 +203,7 @@ class GSlamFilter:
         self._last_update_pose = self.poses[self.best_particle()].copy()
         self._filled = self.poses.copy()
         self._travel_m = self._turn_rad = 0.0
+        self._points_total = sum(len(m) for m in self.maps)  # until the next update
         self.steps += 1
         return result
 

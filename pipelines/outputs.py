@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from gslam.filter import SlamFilter
-from gslam.scan import ScanGeometry, transform_points
+from gslam.scan import ScanGeometry
 from mcaplog import channels as ch
 from mcaplog.mcapio import AtomicMcapWriter, to_ns
 from mcaplog.tempfiles import temporary_for
@@ -185,10 +185,7 @@ class RerunResultWriter:
 
     def step(self, st: Step, flt: SlamFilter) -> None:
         r = st.result
-        ranges = st.event.ranges_m
-        ok = np.isfinite(ranges) & (ranges < self.geometry.max_range_m)
-        pts = np.column_stack([ranges[ok] * np.cos(self.bearings[ok]), ranges[ok] * np.sin(self.bearings[ok])])
-        self.pending_scans.append(transform_points(st.laser_pose, pts))
+        self.pending_scans.append((st.event.ranges_m, st.laser_pose))  # end points computed at _flush
         self.pending_particles.append(r.poses[:, :2].copy())
         self.online.append(r.best_pose[:2].copy())
         for key, value in (
@@ -217,10 +214,20 @@ class RerunResultWriter:
             rr.TimeColumn("scan", sequence=self.stats["scan"][-n:]),
             rr.TimeColumn("time", duration=self.stats["time"][-n:]),
         ]
-        for path, rows in (("world/scan", self.pending_scans), ("world/particles", self.pending_particles)):
+        for path, rows in (("world/scan", self._scan_end_points()), ("world/particles", self.pending_particles)):
             columns = rr.Points2D.columns(positions=np.concatenate(rows)).partition([len(a) for a in rows])
             self.rec.send_columns(path, indexes=idx, columns=columns)
         self.pending_scans, self.pending_particles = [], []
+
+    def _scan_end_points(self) -> list[np.ndarray]:
+        """The world-frame end points of the returns of each pending scan, computed for all at once."""
+        ranges = np.stack([r for r, _ in self.pending_scans])
+        poses = np.stack([pose for _, pose in self.pending_scans])
+        ok = np.isfinite(ranges) & (ranges < self.geometry.max_range_m)
+        row, beam = np.nonzero(ok)
+        z, phi = ranges[row, beam], poses[row, 2] + self.bearings[beam]
+        pts = np.column_stack([poses[row, 0] + z * np.cos(phi), poses[row, 1] + z * np.sin(phi)])
+        return np.split(pts, np.cumsum(ok.sum(axis=1))[:-1])
 
     def _log_map(self, xy: np.ndarray, p: np.ndarray) -> None:
         self.rec.log("world/map", self.rr.Points2D(xy, colors=probability_colors(p), radii=0.07))
