@@ -242,7 +242,8 @@ def test_skipped_scans_are_filled_with_noise_free_motion():
 
     trajectories = {}
     for fill in ("odometry", "sampled"):
-        flt = GSlamFilter(FilterConfig(particles=4, seed=0, proposal="motion", fill_skipped=fill), np.zeros(3))
+        cfg = FilterConfig(particles=4, seed=0, proposal="motion", fill_skipped=fill, min_travel_m=1.0)
+        flt = GSlamFilter(cfg, np.zeros(3))
         updated = [flt.step(sc, predict).updated for sc in scans]
         assert updated == [True, False, False, False, True, False]  # after 1.2 m of travel
         trajectories[fill] = flt.tree.trajectory(0)[1]
