@@ -176,8 +176,8 @@ def _match_one(
         match[5],
         match[6],
     )
+    inv_line = match[4]  # 1 / 2 sigma_s^2: the width of a point-to-line distance
     pair_d2 = match[7]
-    inv_line = match[8]
     pose = pose0.copy()
     current = (
         _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line)
@@ -299,12 +299,13 @@ def match_and_weigh(
     score_sigma_rad: float,
     like_sigma_m: float,
     miss_m: float,
-    line_pair_m: float = 0.0,
+    line_pair_m: float,
     workspace: MatchWorkspace,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Match the scan end points `ends_sensor` (K, 2) against each particle's map and weigh it there.
 
-    Particle i's map is map_xy[map_lo[i]:map_hi[i]] with probabilities map_p[...]. Returns (matched
+    Particle i's map is map_xy[map_lo[i]:map_hi[i]] with probabilities map_p[...]; `line_pair_m` 0 scores
+    every return point to point. Returns (matched
     poses (N, 3), score at the matched pose (N,), log-likelihood there (N,), returns that found an
     occupied cell near their end point (N,)).
     """
@@ -334,7 +335,6 @@ def match_and_weigh(
             0.5 / like_sigma_m**2,
             miss_m**2,
             line_pair_m**2,
-            0.5 / score_sigma_m**2,
         ]
     )
     out = _match_all(

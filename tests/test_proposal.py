@@ -55,6 +55,7 @@ def _match(maps, poses, pts, cfg=None, **over):
         score_sigma_rad=0.0,
         like_sigma_m=cfg.weight_sigma_m,
         miss_m=cfg.weight_miss_m,
+        line_pair_m=cfg.match_line_pair_m,
         workspace=MatchWorkspace(over.pop("workers", 1)),
     )
     kw.update(over)
