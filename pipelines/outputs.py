@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from gslam.filter import SlamFilter
-from gslam.scan import ScanGeometry
+from gslam.scan import ScanGeometry, inverse_measure
 from mcaplog import channels as ch
 from mcaplog.mcapio import AtomicMcapWriter, to_ns
 from mcaplog.tempfiles import temporary_for
@@ -225,8 +225,7 @@ class RerunResultWriter:
         poses = np.stack([pose for _, pose in self.pending_scans])
         ok = np.isfinite(ranges) & (ranges < self.geometry.max_range_m)
         row, beam = np.nonzero(ok)
-        z, phi = ranges[row, beam], poses[row, 2] + self.bearings[beam]
-        pts = np.column_stack([poses[row, 0] + z * np.cos(phi), poses[row, 1] + z * np.sin(phi)])
+        pts = inverse_measure(poses[row], ranges[row, beam], self.bearings[beam])
         return np.split(pts, np.cumsum(ok.sum(axis=1))[:-1])
 
     def _log_map(self, xy: np.ndarray, p: np.ndarray) -> None:
