@@ -16,7 +16,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from mcap.data_stream import ReadDataStream
 from mcap.reader import make_reader
+from mcap.records import Chunk
+from mcap.stream_reader import get_chunk_data_stream
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.decoder import DecoderFactory
@@ -171,14 +174,16 @@ class McapInput:
         with open(self.path, "rb") as f:
             reader = self._reader(f)
             summary = reader.get_summary()
-            chunks = _sequential_chunks(summary, topics)
+            wanted = None
+            if summary is not None:
+                wanted = {cid for cid, c in summary.channels.items() if topics is None or c.topic in topics}
+            chunks = _sequential_chunks(summary, wanted)
             if chunks is None:
                 records = (
                     (schema, channel, m.log_time, m.data)
                     for schema, channel, m in reader.iter_messages(topics=topics, log_time_order=True)
                 )
             else:
-                wanted = {cid for cid, c in summary.channels.items() if topics is None or c.topic in topics}
                 records = (
                     (summary.schemas.get(summary.channels[cid].schema_id), summary.channels[cid], log_time, data)
                     for chunk in chunks
@@ -192,17 +197,14 @@ class McapInput:
                 yield Message(channel.topic, log_time / NS, log_time, value)
 
 
-def _sequential_chunks(summary: Any, topics: list[str] | None) -> list[Any] | None:
-    """The chunk indexes holding `topics`, in time order, when each chunk's messages all come at or
-    before the next chunk's (ties going to the chunk earlier in the file, as in the library's order);
-    None when the file has no chunk index or its chunks overlap in time."""
+def _sequential_chunks(summary: Any, channel_ids: set[int] | None) -> list[Any] | None:
+    """The chunk indexes holding messages of `channel_ids`, in time order, when each chunk's messages all
+    come at or before the next chunk's (ties going to the chunk earlier in the file, as in the library's
+    order); None when the file has no chunk index or its chunks overlap in time."""
     if summary is None or not summary.chunk_indexes:
         return None
-    ids = None if topics is None else {cid for cid, c in summary.channels.items() if c.topic in topics}
     chunks = [
-        c
-        for c in summary.chunk_indexes
-        if ids is None or not c.message_index_offsets or ids & set(c.message_index_offsets)
+        c for c in summary.chunk_indexes if not c.message_index_offsets or channel_ids & set(c.message_index_offsets)
     ]
     chunks.sort(key=lambda c: (c.message_start_time, c.chunk_start_offset))
     for a, b in zip(chunks, chunks[1:], strict=False):
@@ -213,7 +215,6 @@ def _sequential_chunks(summary: Any, topics: list[str] | None) -> list[Any] | No
     return chunks
 
 
-_CHUNK_HEAD = struct.Struct("<QQQII")
 _RECORD_HEAD = struct.Struct("<BQ")
 _MESSAGE_HEAD = struct.Struct("<HIQQ")
 _OP_MESSAGE = 0x05
@@ -221,28 +222,11 @@ _OP_MESSAGE = 0x05
 
 def _chunk_messages(f: Any, chunk_index: Any, channel_ids: set[int]) -> list[tuple[int, int, bytes]]:
     """(log time, channel id, data) of the messages of `channel_ids` in one chunk, in log-time order
-    (ties in file order). Raises ValueError on a damaged chunk."""
-    f.seek(chunk_index.chunk_start_offset + 9)
-    raw = f.read(chunk_index.chunk_length - 9)
-    if len(raw) < _CHUNK_HEAD.size:
-        raise ValueError("truncated chunk")
-    _, _, uncompressed_size, _, name_len = _CHUNK_HEAD.unpack_from(raw)
-    o = _CHUNK_HEAD.size + name_len
-    compression = raw[_CHUNK_HEAD.size : o].decode()
-    (data_len,) = struct.unpack_from("<Q", raw, o)
-    payload = raw[o + 8 : o + 8 + data_len]
-    if len(payload) != data_len:
-        raise ValueError("truncated chunk")
-    if compression == "zstd":
-        import zstandard
-
-        payload = zstandard.decompress(payload, uncompressed_size)
-    elif compression == "lz4":
-        import lz4.frame
-
-        payload = lz4.frame.decompress(payload)
-    elif compression:
-        raise ValueError(f"unsupported chunk compression {compression!r}")
+    (ties in file order). A damaged chunk raises (the library's errors, or ValueError for its records);
+    the pipelines (`pipelines.source.converted`) report any of them as a damaged file."""
+    f.seek(chunk_index.chunk_start_offset + 9)  # past the record's opcode and length
+    stream, size = get_chunk_data_stream(Chunk.read(ReadDataStream(f)))  # decompressed by the library
+    payload = stream.read(size)
     out = []
     o, end = 0, len(payload)
     while o < end:
