@@ -45,6 +45,8 @@ class SuiteRun:
     metrics: dict[str, float | None] = field(default_factory=dict)
     update_ms: list[float] = field(default_factory=list)
     update_ratio: float = float("nan")
+    writer_peak_mb: float = float("nan")
+    """Peak resident memory of the Rerun recording's writer process (`pipelines.rrdwriter`)."""
 
 
 def _percentile(values: list[float], q: float) -> float:
@@ -82,7 +84,9 @@ def run_process(input_mcap: Path, particles: int, seed: int, threads: int, workd
     from .evaluate import evaluate_result, read_result, read_update_times
 
     metrics = evaluate_result(out, input_mcap)
-    peak_mb = float(read_result(out).metadata["result"].get("peak_rss_mb") or float("nan"))
+    result_meta = read_result(out).metadata["result"]
+    peak_mb = float(result_meta.get("peak_rss_mb") or float("nan"))
+    writer_mb = float(result_meta.get("peak_rss_mb_rrd_writer") or float("nan"))
     update_ms = read_update_times(out)
     tenth = max(1, len(update_ms) // 10)
     second = update_ms[tenth : 2 * tenth]
@@ -98,6 +102,7 @@ def run_process(input_mcap: Path, particles: int, seed: int, threads: int, workd
         metrics,
         update_ms,
         ratio,
+        writer_mb,
     )
     for p in (out, out.with_suffix(".rrd")):
         p.unlink(missing_ok=True)
@@ -182,11 +187,12 @@ def speed_section(runs: list[SuiteRun], command: str, machine: str, software: st
         f"- Wall: `gslam process` in a child process, import to exit, median of {repeats} runs (this machine is",
         "  shared; medians). ms per update: the filter's time on the steps that update the maps (median,",
         "  90th percentile). Update ratio: median update time over the last tenth of the log / over its second",
-        "  tenth (flat time per update: near 1). Peak MB: the child's maximum resident set.",
+        "  tenth (flat time per update: near 1). Peak MB: the maximum resident set of the filter's process",
+        "  (`gslam process`) + that of the Rerun recording's writer process it starts (`pipelines.rrdwriter`).",
         "- GMapping: wall times of `../shared/tools/gmapping` (30 particles) from its README on this kind of",
         "  machine; ratio = GMapping wall / gslam wall (above 1: gslam is faster).",
         "",
-        "| log | N | threads | wall (s) | ms per update median / p90 | update ratio | peak MB | error "
+        "| log | N | threads | wall (s) | ms per update median / p90 | update ratio | peak MB (filter + rrd) | error "
         "| GMapping wall (s) | ratio |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
@@ -207,7 +213,8 @@ def speed_section(runs: list[SuiteRun], command: str, machine: str, software: st
         shown = k or f"{os.cpu_count()} (default)"
         lines.append(
             f"| {log} | {n} | {shown} | {wall:.1f} | {statistics.median(upd):.1f} / {statistics.median(p90):.1f} "
-            f"| {statistics.median(r.update_ratio for r in sel):.2f} | {max(r.peak_mb for r in sel):.0f} | {err_s} "
+            f"| {statistics.median(r.update_ratio for r in sel):.2f} | {max(r.peak_mb for r in sel):.0f} + "
+            f"{max(r.writer_peak_mb for r in sel):.0f} | {err_s} "
             f"| {gm if gm else '-'} | {f'{gm / wall:.2f}' if gm else '-'} |"
         )
     return "\n".join(lines) + "\n"

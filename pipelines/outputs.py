@@ -3,7 +3,13 @@ into place on `finish()`, which also runs on interruption, so a result always ho
 
 from __future__ import annotations
 
+import json
 import os
+import pickle
+import queue
+import subprocess
+import sys
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -15,18 +21,16 @@ from mcaplog import channels as ch
 from mcaplog.mcapio import AtomicMcapWriter, to_ns
 from mcaplog.tempfiles import temporary_for
 
+from .errors import OutputError
 from .runner import Step
 
 
-def probability_colors(p: np.ndarray) -> np.ndarray:
-    """RGBA uint8 colours from blue (low) through green to red (high) for p scaled to its maximum."""
-    if len(p) == 0:
-        return np.empty((0, 4), dtype=np.uint8)
-    v = np.clip(p / max(float(p.max()), 1e-300), 0.0, 1.0)
-    r = np.clip(2 * v - 0.5, 0, 1)
-    g = np.clip(1.5 - np.abs(4 * v - 2), 0, 1)
-    b = np.clip(1.5 - 2 * v, 0, 1)
-    return (np.column_stack([r, g, b, np.ones_like(v)]) * 255).astype(np.uint8)
+def _writer_environment() -> dict[str, str]:
+    """This process's environment, with `pipelines` importable by the writer process however it was."""
+    root = str(Path(__file__).resolve().parent.parent)
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
+    return env
 
 
 def covariance_ellipses(mean: np.ndarray, cov: np.ndarray, sigmas: float = 3.0, n: int = 24) -> list[np.ndarray]:
@@ -117,7 +121,15 @@ class McapResultWriter:
 
 
 class RerunResultWriter:
-    """Writes a Rerun recording (.rrd) with a default blueprint, on the `scan` and `time` timelines."""
+    """Writes a Rerun recording (.rrd) with a default blueprint, on the `scan` and `time` timelines.
+
+    The recording is encoded and written by a process of its own (`pipelines.rrdwriter`), started here:
+    this object gathers the steps, computes what needs the filter (scan end points, maps, trajectories)
+    and sends plain arrays; rerun is never imported in the filter's process."""
+
+    FLUSH_EVERY = 200
+    """Steps whose scans and particles are sent to the recording together, as columns (one `log` call
+    per step cost more than the filter on long logs)."""
 
     def __init__(
         self,
@@ -129,60 +141,70 @@ class RerunResultWriter:
         landmarks: np.ndarray | None,
         app_id: str = "gslam",
     ) -> None:
-        import rerun as rr
-
-        self.rr = rr
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.tmp = temporary_for(self.path)
-        self.rec = rr.RecordingStream(app_id)
-        self.rec.save(str(self.tmp), default_blueprint=self.blueprint())
         self.geometry = geometry
         self.snapshot_every = snapshot_every
         self.t0_s = t0_s
         self.bearings = geometry.bearings_rad
         self.stats: dict[str, list[float]] = {k: [] for k in ("scan", "time", "ess", "map", "ms")}
         self.online: list[np.ndarray] = []
-        self.pending_scans: list[np.ndarray] = []
+        self.pending_scans: list[tuple[np.ndarray, np.ndarray]] = []
         self.pending_particles: list[np.ndarray] = []
         self.finished = False
-        # Colours and sizes of the per-step points, once for the whole recording.
-        self.rec.log("world/scan", rr.Points2D.from_fields(colors=[[255, 60, 200]], radii=0.06), static=True)
-        self.rec.log("world/particles", rr.Points2D.from_fields(colors=[[255, 140, 0]], radii=0.12), static=True)
-        if gps is not None and len(gps):
-            self.rec.log("world/gps", rr.LineStrips2D([gps[:, 1:3]], colors=[[40, 200, 40]], radii=0.08), static=True)
-        if landmarks is not None and len(landmarks):
-            self.rec.log(
-                "world/landmarks",
-                rr.Points2D(
-                    landmarks,
-                    colors=[[255, 200, 0]],
-                    radii=0.4,
-                    labels=[f"pole {i + 1}" for i in range(len(landmarks))],
-                ),
-                static=True,
-            )
-
-    def blueprint(self):
-        import rerun.blueprint as rrb
-
-        return rrb.Blueprint(
-            rrb.Horizontal(
-                rrb.Spatial2DView(name="map", origin="world"),
-                rrb.Vertical(
-                    rrb.TimeSeriesView(name="effective sample size", origin="stats/effective_sample_size"),
-                    rrb.TimeSeriesView(name="map points", origin="stats/map_points"),
-                    rrb.TimeSeriesView(name="step time [ms]", origin="stats/step_ms"),
-                ),
-                column_shares=[3, 1],
-            ),
-            collapse_panels=True,
+        self.writer_peak_rss_mb = float("nan")
+        """The writer process's peak resident memory (MB), known after `finish`."""
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "pipelines.rrdwriter"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            start_new_session=True,  # a Ctrl-C at the terminal reaches this process, which then finishes it
+            env=_writer_environment(),
         )
+        # Commands go through a queue and a thread of their own, so the filter never waits on the pipe
+        # (a batch of rows is larger than the pipe's buffer) nor on the writer's start-up.
+        self._queue: queue.Queue[tuple | None] = queue.Queue()
+        self._send_error: OSError | None = None
+        self._sender = threading.Thread(target=self._send_loop, name="rrd-sender", daemon=True)
+        self._sender.start()
+        self._send(("open", str(self.tmp.resolve()), app_id, gps, landmarks))
 
-    FLUSH_EVERY = 200
-    """Steps whose scans and particles are sent to the recording together, as columns (one `log` call
-    per step cost more than the filter on long logs)."""
+    # --- the writer process -------------------------------------------------------------------
+    def _send_loop(self) -> None:
+        while (command := self._queue.get()) is not None:
+            if self._send_error is not None:
+                continue  # the writer is gone: drop the rest, `finish` says why
+            try:
+                pickle.dump(command, self.proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+                self.proc.stdin.flush()
+            except OSError as e:  # BrokenPipeError: the writer stopped
+                self._send_error = e
+        try:
+            self.proc.stdin.close()
+        except OSError:
+            pass
 
+    def _send(self, command: tuple) -> None:
+        self._queue.put(command)
+
+    def _close_pipe(self) -> None:
+        """Send what is queued, close the writer's input and wait for the sender (not the writer)."""
+        if self._sender.is_alive():
+            self._queue.put(None)
+            self._sender.join()
+
+    def _reply(self) -> dict[str, Any]:
+        line = self.proc.stdout.readline()
+        if not line:
+            self.proc.wait()
+            raise OutputError(f"{self.path}: the Rerun writer stopped (exit {self.proc.returncode})")
+        reply = json.loads(line)
+        if "error" in reply:
+            raise OutputError(f"{self.path}: cannot write the Rerun recording: {reply['error']}")
+        return reply
+
+    # --- the steps ----------------------------------------------------------------------------
     def step(self, st: Step, flt: SlamFilter) -> None:
         r = st.result
         self.pending_scans.append((st.event.ranges_m, st.laser_pose))  # end points computed at _flush
@@ -198,9 +220,8 @@ class RerunResultWriter:
             self.stats[key].append(value)
         if self.snapshot_every and st.event.index % self.snapshot_every == 0:
             self._flush()
-            self.rec.set_time("scan", sequence=st.event.index)
-            self.rec.set_time("time", duration=st.event.t_s - self.t0_s)
-            self._log_map(*flt.map_points(r.best))
+            xy, p = flt.map_points(r.best)
+            self._send(("map", st.event.index, st.event.t_s - self.t0_s, np.asarray(xy), np.asarray(p)))
         if len(self.pending_scans) >= self.FLUSH_EVERY:
             self._flush()
 
@@ -209,14 +230,12 @@ class RerunResultWriter:
         n = len(self.pending_scans)
         if n == 0:
             return
-        rr = self.rr
-        idx = [
-            rr.TimeColumn("scan", sequence=self.stats["scan"][-n:]),
-            rr.TimeColumn("time", duration=self.stats["time"][-n:]),
-        ]
+        columns = {}
         for path, rows in (("world/scan", self._scan_end_points()), ("world/particles", self.pending_particles)):
-            columns = rr.Points2D.columns(positions=np.concatenate(rows)).partition([len(a) for a in rows])
-            self.rec.send_columns(path, indexes=idx, columns=columns)
+            columns[path] = (np.concatenate(rows), np.array([len(a) for a in rows]))
+        scans = np.asarray(self.stats["scan"][-n:])
+        times = np.asarray(self.stats["time"][-n:], dtype=float)
+        self._send(("rows", scans, times, columns))
         self.pending_scans, self.pending_particles = [], []
 
     def _scan_end_points(self) -> list[np.ndarray]:
@@ -228,44 +247,51 @@ class RerunResultWriter:
         pts = inverse_measure(poses[row], ranges[row, beam], self.bearings[beam])
         return np.split(pts, np.cumsum(ok.sum(axis=1))[:-1])
 
-    def _log_map(self, xy: np.ndarray, p: np.ndarray) -> None:
-        self.rec.log("world/map", self.rr.Points2D(xy, colors=probability_colors(p), radii=0.07))
-
     def finish(self, flt: SlamFilter) -> Path:
         if self.finished:
             return self.path
-        rr, rec = self.rr, self.rec
         self._flush()
+        final: dict[str, Any] = {}
         if self.stats["scan"]:
-            idx = [
-                rr.TimeColumn("scan", sequence=self.stats["scan"]),
-                rr.TimeColumn("time", duration=self.stats["time"]),
-            ]
-            for name, key in (("effective_sample_size", "ess"), ("map_points", "map"), ("step_ms", "ms")):
-                rec.send_columns(f"stats/{name}", indexes=idx, columns=rr.Scalars.columns(scalars=self.stats[key]))
-            rec.set_time("scan", sequence=self.stats["scan"][-1])
-            rec.set_time("time", duration=self.stats["time"][-1])
-            self._log_map(*flt.map_points(flt.best_particle()))
             best = flt.best_particle()
-            if hasattr(flt, "landmarks"):
-                rec.log(
-                    "world/landmark_ellipses",
-                    rr.LineStrips2D(covariance_ellipses(*flt.landmarks(best)), colors=[[0, 200, 255]], radii=0.03),
-                )
+            xy, p = flt.map_points(best)
+            _, traj = flt.best_trajectory()
+            final = {
+                "stats": {
+                    "scan": np.asarray(self.stats["scan"]),
+                    "time": np.asarray(self.stats["time"], dtype=float),
+                    "effective_sample_size": np.asarray(self.stats["ess"], dtype=float),
+                    "map_points": np.asarray(self.stats["map"], dtype=float),
+                    "step_ms": np.asarray(self.stats["ms"], dtype=float),
+                },
+                "map": (np.asarray(xy), np.asarray(p)),
+                "landmark_ellipses": covariance_ellipses(*flt.landmarks(best)) if hasattr(flt, "landmarks") else None,
+                "occupancy_image": None,
+                "trajectory": np.asarray(traj[:, :2]),
+                "online": np.asarray(self.online),
+            }
             if hasattr(flt, "occupancy"):
                 prob, _, _ = flt.occupancy(best)
-                rec.log("grid/occupancy", rr.Image((255 * (1 - prob.T[::-1])).astype(np.uint8)))
-            _, traj = flt.best_trajectory()
-            rec.log("world/trajectory", rr.LineStrips2D([traj[:, :2]], colors=[[230, 30, 30]], radii=0.1))
-            rec.log("world/online", rr.LineStrips2D([np.asarray(self.online)], colors=[[60, 120, 255]], radii=0.05))
-        rec.flush()
-        rec.disconnect()
+                final["occupancy_image"] = (255 * (1 - prob.T[::-1])).astype(np.uint8)
+        self._send(("finish", final))
+        self._close_pipe()
+        self._reply()  # to "open"
+        reply = self._reply()  # to "finish"
+        self.proc.wait()
+        self.writer_peak_rss_mb = float(reply.get("peak_rss_mb", float("nan")))
         os.replace(self.tmp, self.path)
         self.finished = True
         return self.path
 
     def abort(self) -> None:
         try:
-            self.rec.disconnect()
+            if self.proc.poll() is None:
+                self._send(("abort",))
+                self._close_pipe()
+                try:
+                    self.proc.wait(timeout=30)
+                except subprocess.TimeoutExpired:
+                    self.proc.kill()
+                    self.proc.wait()
         finally:
             Path(self.tmp).unlink(missing_ok=True)

@@ -93,7 +93,18 @@ def process(
     """Run the filter over `input_path`. Ctrl-C or an error mid-run still finishes both outputs with the
     steps done so far (the error is re-raised after)."""
     log = InputLog(input_path)
-    runner = SlamRunner(log, cfg)
+    # The Rerun writer's process starts first: its start-up overlaps the filter's (compiled code loading).
+    rrd_out = None
+    if rrd_path is not None:
+        rrd_out = RerunResultWriter(
+            rrd_path, log.geometry, cfg.map_snapshot_every, log.start_s, log.gps_array(), _landmarks(log)
+        )
+    try:
+        runner = SlamRunner(log, cfg)
+    except BaseException:
+        if rrd_out is not None:
+            rrd_out.abort()
+        raise
     metadata = {
         "gslam": {"version": __version__, "command": command or " ".join(sys.argv), "method": cfg.method},
         "config": cfg.as_dict(),
@@ -110,15 +121,11 @@ def process(
             "from_gps": runner.initialised_from_gps,
         },
     }
-    mcap_out = McapResultWriter(output_path, metadata, cfg.map_snapshot_every)
-    rrd_out = None
     try:
-        if rrd_path is not None:
-            rrd_out = RerunResultWriter(
-                rrd_path, log.geometry, cfg.map_snapshot_every, log.start_s, log.gps_array(), _landmarks(log)
-            )
+        mcap_out = McapResultWriter(output_path, metadata, cfg.map_snapshot_every)
     except BaseException:
-        mcap_out.abort()
+        if rrd_out is not None:
+            rrd_out.abort()
         raise
     total = log.scan_count if cfg.max_scans is None else min(cfg.max_scans, log.scan_count)
     step_ms: list[float] = []
@@ -190,14 +197,22 @@ def process(
     try:
         if cfg.occupancy and not interrupted and scan_indices:
             _write_occupancy(mcap_out, runner, log, scan_indices, cfg)
-        mcap_out.finish(flt, result_meta)
+        rrd_error: Exception | None = None
         if rrd_out is not None:
-            rrd_out.finish(flt)
+            try:
+                rrd_out.finish(flt)  # first, so that the result records the writer's memory
+                result_meta["peak_rss_mb_rrd_writer"] = rrd_out.writer_peak_rss_mb
+            except Exception as e:  # the recording is lost, not the result: finish the MCAP, then say so
+                rrd_out.abort()
+                rrd_error = e
+        mcap_out.finish(flt, result_meta)
     except BaseException:
         mcap_out.abort()
         if rrd_out is not None:
             rrd_out.abort()
         raise
+    if rrd_error is not None:
+        raise rrd_error
     if error is not None:
         written = " and ".join(str(p) for p in (output_path, rrd_path) if p is not None)
         error.add_note(f"wrote {written} with the {summary.steps} steps done, marked interrupted")

@@ -1,0 +1,91 @@
+"""The Rerun recording's writer process (`pipelines.rrdwriter`): what it imports, what it writes, and what
+the filter's process does when it stops or is told to abort."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gslam.scan import ScanGeometry
+from pipelines.errors import OutputError
+from pipelines.outputs import RerunResultWriter
+
+ROOT = Path(__file__).resolve().parents[1]
+GEOMETRY = ScanGeometry(181, -np.pi / 2, np.pi / 180, 30.0)
+
+
+def test_the_writer_imports_neither_the_filter_nor_pandas():
+    """The writer holds rerun's memory, not the filter's; pandas (which pyarrow would pull in) is refused."""
+    code = (
+        "import sys, pipelines.rrdwriter as w; sys.meta_path.insert(0, w._NoPandas()); "
+        "import rerun, pyarrow as pa; pa.array(['a']); "
+        "print(sorted({m.split('.')[0] for m in sys.modules} & {'gslam', 'numba', 'pandas', 'mcap', 'scipy'}))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"
+
+
+class _Flt:
+    """The little of a filter the recording reads at the end."""
+
+    def best_particle(self) -> int:
+        return 0
+
+    def map_points(self, particle: int):
+        return np.array([[1.0, 2.0], [3.0, 4.0]]), np.array([0.9, 0.6])
+
+    def best_trajectory(self):
+        return np.arange(3.0), np.zeros((3, 3))
+
+
+def _rows(writer: RerunResultWriter, n: int) -> None:
+    for i in range(n):
+        writer.stats["scan"].append(i)
+        writer.stats["time"].append(0.1 * i)
+        for key in ("ess", "map", "ms"):
+            writer.stats[key].append(1.0)
+        writer.pending_scans.append((np.full(181, 5.0), np.array([0.1 * i, 0.0, 0.0])))
+        writer.pending_particles.append(np.zeros((4, 2)))
+        writer.online.append(np.zeros(2))
+
+
+def test_a_recording_is_written_through_its_temporary(tmp_path):
+    out = tmp_path / "r.rrd"
+    writer = RerunResultWriter(out, GEOMETRY, 0, 0.0, None, np.array([[1.0, 1.0]]))
+    _rows(writer, 250)
+    writer._flush()
+    assert not out.exists()
+    assert writer.finish(_Flt()) == out
+    assert out.stat().st_size > 10_000 and not list(tmp_path.glob(".*.tmp"))
+    assert writer.writer_peak_rss_mb > 10
+    rerun = Path(sys.executable).with_name("rerun")
+    if rerun.exists():
+        verify = subprocess.run([rerun, "rrd", "verify", str(out)], capture_output=True, text=True, timeout=120)
+        assert verify.returncode == 0, verify.stderr
+
+
+def test_a_writer_that_stopped_is_one_clear_error_and_leaves_nothing(tmp_path):
+    out = tmp_path / "r.rrd"
+    writer = RerunResultWriter(out, GEOMETRY, 0, 0.0, None, None)
+    _rows(writer, 10)
+    writer.proc.kill()
+    writer.proc.wait()
+    with pytest.raises(OutputError, match=r"r\.rrd: the Rerun writer stopped"):
+        writer.finish(_Flt())
+    writer.abort()
+    assert not out.exists() and not list(tmp_path.glob(".*.tmp"))
+
+
+def test_abort_removes_the_temporary(tmp_path):
+    out = tmp_path / "r.rrd"
+    writer = RerunResultWriter(out, GEOMETRY, 0, 0.0, None, None)
+    _rows(writer, 10)
+    writer._flush()
+    writer.abort()
+    assert writer.proc.returncode is not None
+    assert not out.exists() and not list(tmp_path.glob(".*.tmp"))
