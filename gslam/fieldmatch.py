@@ -188,14 +188,19 @@ def _match_one(
         best = -1.0
         refinement = 0
         cand = np.empty(3)
+        back = -1  # the move back to the pose just left: it scored below the current pose, skip it
         for _ in range(max_iter):
             if best >= current:
                 refinement += 1
                 step_xy *= 0.5
                 step_phi *= 0.5
+                back = -1
             best = current
             best_local = pose.copy()
+            chosen = -1
             for move in range(6):
+                if move == back:
+                    continue
                 cand[0], cand[1], cand[2] = pose[0], pose[1], pose[2]
                 if move == 0:
                     cand[0] += step_xy
@@ -215,7 +220,9 @@ def _match_one(
                 if s > current:
                     current = s
                     best_local[:] = cand
+                    chosen = move
             pose[:] = best_local
+            back = chosen ^ 1 if chosen >= 0 else -1  # moves come in pairs: 0/1 x, 2/3 y, 4/5 phi
             if not (current > best or refinement < levels):
                 break
     like, hits = _log_likelihood(
