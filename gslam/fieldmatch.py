@@ -188,7 +188,8 @@ def _match_one(
         best = -1.0
         refinement = 0
         cand = np.empty(3)
-        back = -1  # the move back to the pose just left: it scored below the current pose, skip it
+        back = -1  # the move back to the pose just left (`left`): it scored below the current pose
+        left = pose.copy()
         for _ in range(max_iter):
             if best >= current:
                 refinement += 1
@@ -199,8 +200,6 @@ def _match_one(
             best_local = pose.copy()
             chosen = -1
             for move in range(6):
-                if move == back:
-                    continue
                 cand[0], cand[1], cand[2] = pose[0], pose[1], pose[2]
                 if move == 0:
                     cand[0] += step_xy
@@ -214,6 +213,10 @@ def _match_one(
                     cand[2] += step_phi
                 else:
                     cand[2] -= step_phi
+                if move == back and cand[0] == left[0] and cand[1] == left[1] and cand[2] == left[2]:
+                    continue  # its score is known, below the current one (only when the move back lands
+                    # exactly on it: the pose lattice meets the raster's cell edges, so a rounding off by one
+                    # unit in the last place can change a score)
                 s = _score(
                     cand, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line
                 )
@@ -221,6 +224,7 @@ def _match_one(
                     current = s
                     best_local[:] = cand
                     chosen = move
+            left[:] = pose
             pose[:] = best_local
             back = chosen ^ 1 if chosen >= 0 else -1  # moves come in pairs: 0/1 x, 2/3 y, 4/5 phi
             if not (current > best or refinement < levels):
