@@ -49,6 +49,37 @@ class SuiteRun:
     """Peak resident memory of the Rerun recording's writer process (`pipelines.rrdwriter`)."""
 
 
+@dataclass
+class GMappingRun:
+    """One run of OpenSLAM GMapping through `../shared/tools/gmapping/run.sh` (30 particles, ROS defaults)."""
+
+    log: str
+    wall_s: float
+    peak_mb: float
+    trans_m: float | None
+
+
+def run_gmapping(harness: Path, log: Path, particles: int, seed: int, workdir: Path) -> GMappingRun:
+    """`run.sh LOG PARTICLES SEED` of the GMapping harness (it builds GMapping once if needed); its one
+    summary line parsed: wall (s, /usr/bin/time), peak (MB), relations translation error (m)."""
+    env = dict(os.environ, GM_OUT=str(workdir / "gmapping"))
+    cmd = ["bash", str(harness / "run.sh"), str(log), str(particles), str(seed)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    line = proc.stdout.strip().splitlines()[-1] if proc.stdout.strip() else ""
+    wall = re.search(r"wall ([0-9.]+) s", line)
+    if proc.returncode != 0 or wall is None:
+        last = (proc.stderr.strip().splitlines() or [line or "(no message)"])[-1]
+        raise RuntimeError(f"{' '.join(cmd)} failed: {last}")
+    peak = re.search(r"peak ([0-9]+) MB", line)
+    trans = re.search(r"trans ([0-9.]+)\+-", line)
+    return GMappingRun(
+        log.name.split(".")[0],
+        float(wall.group(1)),
+        float(peak.group(1)) if peak else float("nan"),
+        float(trans.group(1)) if trans else None,
+    )
+
+
 def _percentile(values: list[float], q: float) -> float:
     if not values:
         return float("nan")
@@ -176,7 +207,30 @@ def freiburg_section(runs: list[SuiteRun], command: str, machine: str, software:
     return "\n".join(lines) + "\n"
 
 
-def speed_section(runs: list[SuiteRun], command: str, machine: str, software: str, repeats: int) -> str:
+def speed_section(
+    runs: list[SuiteRun],
+    command: str,
+    machine: str,
+    software: str,
+    repeats: int,
+    gmapping_runs: list[GMappingRun] | None = None,
+) -> str:
+    gm_measured = {
+        log: [g for g in gmapping_runs or [] if g.log == log] for log in {g.log for g in gmapping_runs or []}
+    }
+    gm_note = (
+        [
+            "- GMapping: `../shared/tools/gmapping/run.sh LOG 30 0` (OpenSLAM GMapping, C++ -O3, 30 particles, one",
+            f"  core) run right after each of gslam's runs on the Freiburg logs, median of {repeats}: the two saw the",
+            "  same machine, so the ratio (GMapping wall / gslam wall; above 1: gslam is faster) holds on a noisy one.",
+            "  The Car Park's GMapping figure (9.9 s) is the speed issue's, not measured here (GMapping reads CARMEN).",
+        ]
+        if gm_measured
+        else [
+            "- GMapping: wall times of `../shared/tools/gmapping` (30 particles) from its README on this kind of",
+            "  machine (not run beside this table); ratio = GMapping wall / gslam wall (above 1: gslam is faster).",
+        ]
+    )
     lines = [
         "## Speed: whole `gslam process` runs",
         "",
@@ -189,11 +243,10 @@ def speed_section(runs: list[SuiteRun], command: str, machine: str, software: st
         "  90th percentile). Update ratio: median update time over the last tenth of the log / over its second",
         "  tenth (flat time per update: near 1). Peak MB: the maximum resident set of the filter's process",
         "  (`gslam process`) + that of the Rerun recording's writer process it starts (`pipelines.rrdwriter`).",
-        "- GMapping: wall times of `../shared/tools/gmapping` (30 particles) from its README on this kind of",
-        "  machine; ratio = GMapping wall / gslam wall (above 1: gslam is faster).",
+        *gm_note,
         "",
         "| log | N | threads | wall (s) | ms per update median / p90 | update ratio | peak MB (filter + rrd) | error "
-        "| GMapping wall (s) | ratio |",
+        "| GMapping wall (s), peak MB | ratio |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     keys = list(dict.fromkeys((r.log, r.particles, r.threads) for r in runs))
@@ -210,12 +263,16 @@ def speed_section(runs: list[SuiteRun], command: str, machine: str, software: st
             else f"{m.get('gps_mean_error_m') or float('nan'):.2f} m (GPS)"
         )
         gm = GMAPPING_REFERENCE.get(log, {}).get("wall_s") if n == 30 else None
+        gm_shown = f"{gm} (reference)" if gm else "-"
+        if n == 30 and gm_measured.get(log):
+            gm = statistics.median(g.wall_s for g in gm_measured[log])
+            gm_shown = f"{gm:.1f}, {max(g.peak_mb for g in gm_measured[log]):.0f} MB"
         shown = k or f"{os.cpu_count()} (default)"
         lines.append(
             f"| {log} | {n} | {shown} | {wall:.1f} | {statistics.median(upd):.1f} / {statistics.median(p90):.1f} "
             f"| {statistics.median(r.update_ratio for r in sel):.2f} | {max(r.peak_mb for r in sel):.0f} + "
             f"{max(r.writer_peak_mb for r in sel):.0f} | {err_s} "
-            f"| {gm if gm else '-'} | {f'{gm / wall:.2f}' if gm else '-'} |"
+            f"| {gm_shown} | {f'{gm / wall:.2f}' if gm else '-'} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -239,7 +296,12 @@ def run_suite(
     threads: list[int],
     repeats: int,
     progress: Callable[[str], None],
+    gmapping: Path | None = None,
+    gmapping_runs: list[GMappingRun] | None = None,
 ) -> list[SuiteRun]:
+    """Every log x N x threads x seed, `repeats` times. With `gmapping` (the harness directory), each run
+    at N 30 with the default threads on a CARMEN log is followed by GMapping's on the same log (appended
+    to `gmapping_runs`), so that the two see the same machine: their ratio holds on a noisy machine."""
     runs: list[SuiteRun] = []
     with tempfile.TemporaryDirectory(prefix=f"gslam-bench-{suite}-") as tmp:
         work = Path(tmp)
@@ -257,4 +319,14 @@ def run_suite(
                                 f"{r.wall_s:.1f} s, "
                                 + (f"{err:.3f} m" if err is not None else f"{r.metrics.get('gps_mean_error_m'):.2f} m")
                             )
+                            if gmapping is not None and gmapping_runs is not None and n == 30 and k == 0:
+                                if ".clf" in log.name:
+                                    try:
+                                        g = run_gmapping(gmapping, log, 30, seed, work)
+                                    except RuntimeError as e:  # e.g. no GM_MIRROR to build it from
+                                        progress(f"{suite}: GMapping not run, reference times instead: {e}")
+                                        gmapping = None
+                                        continue
+                                    gmapping_runs.append(g)
+                                    progress(f"{suite}: GMapping {g.log} N 30 seed {seed}: {g.wall_s:.1f} s")
     return runs

@@ -396,6 +396,14 @@ def bench(
     freiburg: Annotated[
         Path, typer.Option("--freiburg", help="Directory with the Freiburg CARMEN logs (freiburg and speed suites).")
     ] = Path("../shared/datasets/freiburg"),
+    gmapping: Annotated[
+        Path,
+        typer.Option(
+            "--gmapping",
+            help="GMapping harness directory (speed suite): GMapping runs beside gslam on the Freiburg logs; "
+            "when it is absent the table gives GMapping's reference times instead.",
+        ),
+    ] = Path("../shared/tools/gmapping"),
 ) -> None:
     """Benchmarks into docs/BENCHMARKS.md: the paper's Tables 3 and 4 on the Car Park log (beside the paper's
     figures), the Freiburg indoor logs (beside GMapping), and speed."""
@@ -426,10 +434,13 @@ def bench(
             # Every core (the default), and one thread for the scaling; N 8 / 30 / 100 on the Car Park for
             # the growth in N; the Freiburg logs at N 30, as GMapping was measured.
             jobs = [(data, [8, 30, 100], [0]), (data, [30], [1]), (logs[0], [30], [0]), (logs[1], [30], [0, 1])]
-            runs = []
+            harness = gmapping if (gmapping / "run.sh").exists() else None
+            if harness is None:
+                echo(f"--gmapping {gmapping}: no run.sh there; the table gives GMapping's reference times")
+            runs, gm_runs = [], []
             for log, ns, counts in jobs:
-                runs += run_suite("speed", [log], ns, [0], counts, 3, echo)
-            text = speed_section(runs, command, machine_description(), versions(), 3)
+                runs += run_suite("speed", [log], ns, [0], counts, 3, echo, harness, gm_runs)
+            text = speed_section(runs, command, machine_description(), versions(), 3, gm_runs)
     else:
         chosen = [m.strip() for m in methods.split(",") if m.strip()]
         if chosen == ["all"]:
