@@ -92,12 +92,20 @@ def _return_d2(pose, c, s, ends, dirs, j, x0, y0, nx, ny, cell_m, kernel, grid, 
 
 
 @njit(cache=True)
-def _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, inv_2s2, pair_d2, inv_line):
+def _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, inv_2s2, pair_d2, inv_line, beat):
     """Sum over returns j of exp(-d_j^2 w_j), w_j = inv_line for a point-to-line distance, else inv_2s2[j]
-    (1 / 2 sigma_j^2 of return j)."""
+    (1 / 2 sigma_j^2 of return j).
+
+    A candidate of the climb only matters if it scores above `beat`: every term is at most 1, so once the
+    sum so far plus one per return left stays below `beat` (by 1e-9, far above the sum's rounding), the
+    rest is not computed and -1 is returned. `beat` -inf computes the whole sum."""
     c, s = math.cos(pose[2]), math.sin(pose[2])
     total = 0.0
-    for j in range(ends.shape[0]):
+    count = ends.shape[0]
+    bound = beat - 1e-9
+    for j in range(count):
+        if total + (count - j) < bound:
+            return -1.0  # cannot reach `beat`
         d2, line = _return_d2(pose, c, s, ends, dirs, j, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2)
         if d2 >= 0.0:
             total += math.exp(-d2 * (inv_line if line else inv_2s2[j]))
@@ -180,7 +188,7 @@ def _match_one(
     pair_d2 = match[7]
     pose = pose0.copy()
     current = (
-        _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line)
+        _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line, -np.inf)
         if used
         else 0.0
     )
@@ -218,7 +226,21 @@ def _match_one(
                     # exactly on it: the pose lattice meets the raster's cell edges, so a rounding off by one
                     # unit in the last place can change a score)
                 s = _score(
-                    cand, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line
+                    cand,
+                    ends,
+                    dirs,
+                    x0,
+                    y0,
+                    nx,
+                    ny,
+                    cell_m,
+                    kernel,
+                    grid,
+                    mean_xy,
+                    score_inv,
+                    pair_d2,
+                    inv_line,
+                    current,
                 )
                 if s > current:
                     current = s
