@@ -231,6 +231,7 @@ class GSlamFilter:
         )
         self.maps = [PointMap(out_xy[a:b], out_p[a:b]) for a, b in bounds]
         self._layout = (out_xy, out_p, bounds[:, 0].copy(), bounds[:, 1].copy())
+        self._update_workspace.release(xy, p)  # the maps before this update: written to again when free
         return int((bounds[:, 1] - bounds[:, 0]).sum())
 
     def _update_maps_numpy(self, scan: Scan, matched_log_like: np.ndarray) -> tuple[np.ndarray, int]:

@@ -73,7 +73,8 @@ def test_new_points_are_drawn_around_returns_and_thinned_per_cell():
     assert counts.max() <= 2 and len(xy) > 100
 
 
-def test_filter_results_do_not_depend_on_the_thread_count():
+def _simulated_run(threads: int, on_step=None) -> GSlamFilter:
+    """G-SLAM (N 6, compiled update) over 8 s of the simulated car park; on_step(flt, k) after each scan."""
     from gslam.motion import integrate_ackermann
     from gslam.sim import carpark_world, simulate_loop
     from gslam.vehicle import VEHICLE_PRESETS
@@ -82,25 +83,67 @@ def test_filter_results_do_not_depend_on_the_thread_count():
     rng = np.random.default_rng(5)
     sim = simulate_loop(carpark_world(rng), car, rng, duration_s=8.0)
     geom = ScanGeometry(361, -math.pi / 2, math.pi / 360, 80.0)
+    cfg = FilterConfig(particles=6, seed=1, min_travel_m=0.3)
+    flt = GSlamFilter(cfg, sim.truth[0, 1:], threads=threads)
+    t_prev = sim.scan_t[0]
+    for k in range(1, len(sim.scan_t)):
+        t = sim.scan_t[k]
+        lo = np.searchsorted(sim.controls[:, 0], t_prev, side="right") - 1
+        hi = np.searchsorted(sim.controls[:, 0], t, side="left")
+
+        def predict(poses, g, u=sim.controls[lo:hi], t0=t_prev, t1=t, c=cfg):
+            return integrate_ackermann(
+                poses, u, t1, t0, car, g, c.speed_sigma_mps, c.speed_sigma_rel, c.steering_sigma_rad
+            )
+
+        flt.step(Scan(t, sim.ranges[k], geom), predict)
+        t_prev = t
+        if on_step is not None:
+            on_step(flt, k)
+    assert flt.compiled_update
+    return flt
+
+
+def test_filter_results_do_not_depend_on_the_thread_count():
     runs = []
     for threads in (1, 2):
-        cfg = FilterConfig(particles=6, seed=1, min_travel_m=0.3)
-        flt = GSlamFilter(cfg, sim.truth[0, 1:], threads=threads)
-        t_prev = sim.scan_t[0]
-        for k in range(1, len(sim.scan_t)):
-            t = sim.scan_t[k]
-            lo = np.searchsorted(sim.controls[:, 0], t_prev, side="right") - 1
-            hi = np.searchsorted(sim.controls[:, 0], t, side="left")
-
-            def predict(poses, g, u=sim.controls[lo:hi], t0=t_prev, t1=t, c=cfg):
-                return integrate_ackermann(
-                    poses, u, t1, t0, car, g, c.speed_sigma_mps, c.speed_sigma_rel, c.steering_sigma_rad
-                )
-
-            flt.step(Scan(t, sim.ranges[k], geom), predict)
-            t_prev = t
-        assert flt.compiled_update
+        flt = _simulated_run(threads)
         runs.append((flt.best_trajectory()[1], [m.p.copy() for m in flt.maps]))
     np.testing.assert_array_equal(runs[0][0], runs[1][0])
     for a, b in zip(runs[0][1], runs[1][1], strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def test_a_buffer_is_written_again_only_when_nothing_else_holds_it():
+    ws = UpdateWorkspace(1, 1)
+    xy, p = ws.take(100)
+    assert len(p) >= 100 and len(xy) == len(p)
+    ws.release(xy, p)
+    held = xy[3:10]  # a caller keeps a map that lives in the buffer
+    del xy, p
+    xy2, p2 = ws.take(100)
+    assert xy2.base is None and held.base is not xy2  # a new buffer: the held map is left alone
+    ws.release(xy2, p2)
+    ident = id(xy2)
+    del xy2, p2
+    xy3, _ = ws.take(50)
+    assert id(xy3) == ident  # nothing holds it: written again
+    big, _ = ws.take(10_000)
+    assert len(big) >= 10_000
+
+
+def test_maps_a_caller_holds_do_not_change_under_later_updates():
+    """The update writes new maps into the buffer of the update before the last when it is free: a map a
+    caller kept (a view into that buffer) must make it not free, and stay as it was."""
+    held = {}
+
+    def keep(flt, k):
+        if k in (5, 6, 7):
+            xy, p = flt.map_points(0)
+            held[k] = (xy, p, xy.copy(), p.copy())
+
+    flt = _simulated_run(1, keep)
+    assert flt.steps > 30 and len(held) == 3
+    for xy, p, xy0, p0 in held.values():
+        np.testing.assert_array_equal(xy, xy0)
+        np.testing.assert_array_equal(p, p0)
