@@ -155,6 +155,8 @@ class RerunResultWriter:
         self.finished = False
         self.writer_peak_rss_mb = float("nan")
         """The writer process's peak resident memory (MB), known after `finish`."""
+        self.writer_cpu_s = float("nan")
+        """The writer process's processor time (user + system, s), known after `finish`."""
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "pipelines.rrdwriter"],
             stdin=subprocess.PIPE,
@@ -279,6 +281,7 @@ class RerunResultWriter:
         reply = self._reply()  # to "finish"
         self.proc.wait()
         self.writer_peak_rss_mb = float(reply.get("peak_rss_mb", float("nan")))
+        self.writer_cpu_s = float(reply.get("cpu_s", float("nan")))
         os.replace(self.tmp, self.path)
         self.finished = True
         return self.path

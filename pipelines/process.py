@@ -202,6 +202,7 @@ def process(
             try:
                 rrd_out.finish(flt)  # first, so that the result records the writer's memory
                 result_meta["peak_rss_mb_rrd_writer"] = rrd_out.writer_peak_rss_mb
+                result_meta["cpu_s_rrd_writer"] = rrd_out.writer_cpu_s
             except Exception as e:  # the recording is lost, not the result: finish the MCAP, then say so
                 rrd_out.abort()
                 rrd_error = e

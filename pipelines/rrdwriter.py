@@ -148,8 +148,13 @@ def serve(commands: BinaryIO, replies: BinaryIO) -> int:
                 recorder.map(*cmd[1:])
             elif kind == "finish":
                 recorder.finish(cmd[1])
-                peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-                _reply(replies, finished=True, peak_rss_mb=peak)
+                usage = resource.getrusage(resource.RUSAGE_SELF)
+                _reply(
+                    replies,
+                    finished=True,
+                    peak_rss_mb=usage.ru_maxrss / 1024,
+                    cpu_s=usage.ru_utime + usage.ru_stime,
+                )
                 return 0
             elif kind == "abort":
                 if recorder is not None:
