@@ -175,7 +175,7 @@ def freiburg_section(runs: list[SuiteRun], command: str, machine: str, software:
         "  with `../shared/tools/gmapping` (its README; seeds 0, 1, 2 on mit-csail, 0, 1 on intel).",
         "",
         "| log | N | seed | translation (m) | rotation (deg) | wall (s) | ms per update median / p90 "
-        "| updates | final map points | peak MB |",
+        "| updates | final map points | peak MB (filter + rrd) |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in runs:
@@ -183,7 +183,8 @@ def freiburg_section(runs: list[SuiteRun], command: str, machine: str, software:
         lines.append(
             f"| {r.log} | {r.particles} | {r.seed} | {m['relations_trans_m']:.3f} ± {m['relations_trans_std_m']:.3f} "
             f"| {m['relations_rot_deg']:.2f} | {r.wall_s:.1f} | {statistics.median(r.update_ms):.1f} / "
-            f"{_percentile(r.update_ms, 90):.1f} | {len(r.update_ms)} | {m['final_map_points']:.0f} | {r.peak_mb:.0f} |"
+            f"{_percentile(r.update_ms, 90):.1f} | {len(r.update_ms)} | {m['final_map_points']:.0f} "
+            f"| {r.peak_mb:.0f} + {r.writer_peak_mb:.0f} |"
         )
     lines += [
         "",
