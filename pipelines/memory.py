@@ -20,12 +20,15 @@ from gslam.config import FilterConfig
 
 from .process import process
 from .runner import RunConfig
+from .writerproc import usage
 
 
 def peak_rss_mib() -> float:
-    """Peak resident memory of this process so far [MiB] (Linux reports ru_maxrss in KiB)."""
-    scale = 1 / 1024 if sys.platform != "darwin" else 1 / 2**20
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * scale
+    """Peak resident memory of this process so far [MiB], its own (`writerproc.usage`: not what Linux
+    carries over from the process that started it)."""
+    if sys.platform == "darwin":
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+    return usage()["peak_rss_mb"]
 
 
 def current_rss_mib() -> float:

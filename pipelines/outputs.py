@@ -3,13 +3,7 @@ into place on `finish()`, which also runs on interruption, so a result always ho
 
 from __future__ import annotations
 
-import json
 import os
-import pickle
-import queue
-import subprocess
-import sys
-import threading
 from pathlib import Path
 from typing import Any
 
@@ -21,16 +15,8 @@ from mcaplog import channels as ch
 from mcaplog.mcapio import AtomicMcapWriter, to_ns
 from mcaplog.tempfiles import temporary_for
 
-from .errors import OutputError
 from .runner import Step
-
-
-def _writer_environment() -> dict[str, str]:
-    """This process's environment, with `pipelines` importable by the writer process however it was."""
-    root = str(Path(__file__).resolve().parent.parent)
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
-    return env
+from .writerproc import WriterProcess
 
 
 def covariance_ellipses(mean: np.ndarray, cov: np.ndarray, sigmas: float = 3.0, n: int = 24) -> list[np.ndarray]:
@@ -153,58 +139,9 @@ class RerunResultWriter:
         self.pending_scans: list[tuple[np.ndarray, np.ndarray]] = []
         self.pending_particles: list[np.ndarray] = []
         self.finished = False
-        self.writer_peak_rss_mb = float("nan")
-        """The writer process's peak resident memory (MB), known after `finish`."""
-        self.writer_cpu_s = float("nan")
-        """The writer process's processor time (user + system, s), known after `finish`."""
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "pipelines.rrdwriter"],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            start_new_session=True,  # a Ctrl-C at the terminal reaches this process, which then finishes it
-            env=_writer_environment(),
+        self.writer = WriterProcess(
+            "pipelines.rrdwriter", "the Rerun recording", self.path, (str(self.tmp.resolve()), app_id, gps, landmarks)
         )
-        # Commands go through a queue and a thread of their own, so the filter never waits on the pipe
-        # (a batch of rows is larger than the pipe's buffer) nor on the writer's start-up.
-        self._queue: queue.Queue[tuple | None] = queue.Queue()
-        self._send_error: OSError | None = None
-        self._sender = threading.Thread(target=self._send_loop, name="rrd-sender", daemon=True)
-        self._sender.start()
-        self._send(("open", str(self.tmp.resolve()), app_id, gps, landmarks))
-
-    # --- the writer process -------------------------------------------------------------------
-    def _send_loop(self) -> None:
-        while (command := self._queue.get()) is not None:
-            if self._send_error is not None:
-                continue  # the writer is gone: drop the rest, `finish` says why
-            try:
-                pickle.dump(command, self.proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
-                self.proc.stdin.flush()
-            except OSError as e:  # BrokenPipeError: the writer stopped
-                self._send_error = e
-        try:
-            self.proc.stdin.close()
-        except OSError:
-            pass
-
-    def _send(self, command: tuple) -> None:
-        self._queue.put(command)
-
-    def _close_pipe(self) -> None:
-        """Send what is queued, close the writer's input and wait for the sender (not the writer)."""
-        if self._sender.is_alive():
-            self._queue.put(None)
-            self._sender.join()
-
-    def _reply(self) -> dict[str, Any]:
-        line = self.proc.stdout.readline()
-        if not line:
-            self.proc.wait()
-            raise OutputError(f"{self.path}: the Rerun writer stopped (exit {self.proc.returncode})")
-        reply = json.loads(line)
-        if "error" in reply:
-            raise OutputError(f"{self.path}: cannot write the Rerun recording: {reply['error']}")
-        return reply
 
     # --- the steps ----------------------------------------------------------------------------
     def step(self, st: Step, flt: SlamFilter) -> None:
@@ -223,7 +160,7 @@ class RerunResultWriter:
         if self.snapshot_every and st.event.index % self.snapshot_every == 0:
             self._flush()
             xy, p = flt.map_points(r.best)
-            self._send(("map", st.event.index, st.event.t_s - self.t0_s, np.asarray(xy), np.asarray(p)))
+            self.writer.send(("map", st.event.index, st.event.t_s - self.t0_s, np.asarray(xy), np.asarray(p)))
         if len(self.pending_scans) >= self.FLUSH_EVERY:
             self._flush()
 
@@ -237,7 +174,7 @@ class RerunResultWriter:
             columns[path] = (np.concatenate(rows), np.array([len(a) for a in rows]))
         scans = np.asarray(self.stats["scan"][-n:])
         times = np.asarray(self.stats["time"][-n:], dtype=float)
-        self._send(("rows", scans, times, columns))
+        self.writer.send(("rows", scans, times, columns))
         self.pending_scans, self.pending_particles = [], []
 
     def _scan_end_points(self) -> list[np.ndarray]:
@@ -275,26 +212,13 @@ class RerunResultWriter:
             if hasattr(flt, "occupancy"):
                 prob, _, _ = flt.occupancy(best)
                 final["occupancy_image"] = (255 * (1 - prob.T[::-1])).astype(np.uint8)
-        self._send(("finish", final))
-        self._close_pipe()
-        self._reply()  # to "open"
-        reply = self._reply()  # to "finish"
-        self.proc.wait()
-        self.writer_peak_rss_mb = float(reply.get("peak_rss_mb", float("nan")))
-        self.writer_cpu_s = float(reply.get("cpu_s", float("nan")))
+        self.writer.finish(("finish", final))
         os.replace(self.tmp, self.path)
         self.finished = True
         return self.path
 
     def abort(self) -> None:
         try:
-            if self.proc.poll() is None:
-                self._send(("abort",))
-                self._close_pipe()
-                try:
-                    self.proc.wait(timeout=30)
-                except subprocess.TimeoutExpired:
-                    self.proc.kill()
-                    self.proc.wait()
+            self.writer.abort()
         finally:
             Path(self.tmp).unlink(missing_ok=True)

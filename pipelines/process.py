@@ -16,6 +16,7 @@ from mcaplog import channels as ch
 from .outputs import McapResultWriter, RerunResultWriter
 from .runner import RunConfig, SlamRunner
 from .source import InputLog
+from .writerproc import usage
 
 
 @dataclass
@@ -53,10 +54,8 @@ class ProcessSummary:
 
 
 def peak_rss_mb() -> float:
-    """This process's peak resident memory so far (MB; Linux reports ru_maxrss in kB)."""
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    """This process's peak resident memory so far (MB), its own (`writerproc.usage`)."""
+    return usage()["peak_rss_mb"]
 
 
 def _landmarks(log: InputLog) -> np.ndarray | None:
@@ -201,8 +200,8 @@ def process(
         if rrd_out is not None:
             try:
                 rrd_out.finish(flt)  # first, so that the result records the writer's memory
-                result_meta["peak_rss_mb_rrd_writer"] = rrd_out.writer_peak_rss_mb
-                result_meta["cpu_s_rrd_writer"] = rrd_out.writer_cpu_s
+                result_meta["peak_rss_mb_rrd_writer"] = rrd_out.writer.peak_rss_mb
+                result_meta["cpu_s_rrd_writer"] = rrd_out.writer.cpu_s
             except Exception as e:  # the recording is lost, not the result: finish the MCAP, then say so
                 rrd_out.abort()
                 rrd_error = e

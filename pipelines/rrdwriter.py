@@ -5,26 +5,23 @@ building the blueprint and encoding the rows run on another core than the filter
 process does not hold rerun's memory. Plain data only: numpy arrays in pickled commands on stdin, one
 JSON line per reply on stdout. It imports numpy and rerun, nothing of the filter.
 
-Commands, in order: ("open", path, app_id, gps, landmarks), then any number of ("rows", ...) and
-("map", ...), then ("finish", ...) or ("abort",). The file at `path` is the caller's temporary: the
-caller renames it once "finish" is answered. When stdin closes without "finish" or "abort" (the caller
-was killed) the rows received are flushed and the temporary is left, as the caller's own temporaries
-are, for the next run to remove.
+Commands (`pipelines.writerproc`): ("open", path, app_id, gps, landmarks), then any number of
+("rows", ...) and ("map", ...), then ("finish", final) or ("abort",). The file at `path` is the caller's
+temporary: the caller renames it once "finish" is answered. When stdin closes without "finish" or
+"abort" (the caller was killed) the rows received are flushed and the temporary is left, as the
+caller's own temporaries are, for the next run to remove.
 """
 
 from __future__ import annotations
 
 import importlib.abc
-import json
-import os
-import pickle
-import resource
-import signal
 import sys
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any
 
 import numpy as np
+
+from . import writerproc
 
 
 def probability_colors(p: np.ndarray) -> np.ndarray:
@@ -121,51 +118,9 @@ class Recorder:
         self.rec.flush()
         self.rec.disconnect()
 
-
-def _reply(out: BinaryIO, **fields: Any) -> None:
-    out.write((json.dumps(fields) + "\n").encode())
-    out.flush()
-
-
-def serve(commands: BinaryIO, replies: BinaryIO) -> int:
-    """Carry out the commands read from `commands` until "finish", "abort" or the end of the stream."""
-    recorder: Recorder | None = None
-    try:
-        while True:
-            try:
-                cmd = pickle.load(commands)
-            except EOFError:  # the caller is gone: keep what was received, leave the temporary
-                if recorder is not None:
-                    recorder.close()
-                return 0
-            kind = cmd[0]
-            if kind == "open":
-                recorder = Recorder(*cmd[1:])
-                _reply(replies, opened=True)
-            elif kind == "rows":
-                recorder.rows(*cmd[1:])
-            elif kind == "map":
-                recorder.map(*cmd[1:])
-            elif kind == "finish":
-                recorder.finish(cmd[1])
-                usage = resource.getrusage(resource.RUSAGE_SELF)
-                _reply(
-                    replies,
-                    finished=True,
-                    peak_rss_mb=usage.ru_maxrss / 1024,
-                    cpu_s=usage.ru_utime + usage.ru_stime,
-                )
-                return 0
-            elif kind == "abort":
-                if recorder is not None:
-                    recorder.close()
-                    recorder.path.unlink(missing_ok=True)
-                return 0
-            else:
-                raise ValueError(f"unknown command {kind!r}")
-    except Exception as e:  # one line for the caller, which raises it as its own error
-        _reply(replies, error=f"{type(e).__name__}: {e}".splitlines()[0])
-        return 1
+    def abort(self) -> None:
+        self.close()
+        self.path.unlink(missing_ok=True)
 
 
 class _NoPandas(importlib.abc.MetaPathFinder):
@@ -178,15 +133,10 @@ class _NoPandas(importlib.abc.MetaPathFinder):
 
 
 def main() -> int:
-    # The caller handles Ctrl-C and SIGTERM and then tells this process to finish: ignore them here.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     # pyarrow (under rerun) imports pandas, when installed, at its first array: 0.5 s and 40 MB that the
     # recording never uses. Refusing the import here is what pyarrow sees when pandas is not installed.
     sys.meta_path.insert(0, _NoPandas())
-    replies = os.fdopen(os.dup(sys.stdout.fileno()), "wb")
-    os.dup2(sys.stderr.fileno(), sys.stdout.fileno())  # anything printed goes to stderr, not the replies
-    return serve(sys.stdin.buffer, replies)
+    return writerproc.main(Recorder)
 
 
 if __name__ == "__main__":

@@ -62,7 +62,7 @@ def test_a_recording_is_written_through_its_temporary(tmp_path):
     assert not out.exists()
     assert writer.finish(_Flt()) == out
     assert out.stat().st_size > 10_000 and not list(tmp_path.glob(".*.tmp"))
-    assert writer.writer_peak_rss_mb > 10
+    assert writer.writer.peak_rss_mb > 10
     rerun = Path(sys.executable).with_name("rerun")
     if rerun.exists():
         verify = subprocess.run([rerun, "rrd", "verify", str(out)], capture_output=True, text=True, timeout=120)
@@ -73,9 +73,9 @@ def test_a_writer_that_stopped_is_one_clear_error_and_leaves_nothing(tmp_path):
     out = tmp_path / "r.rrd"
     writer = RerunResultWriter(out, GEOMETRY, 0, 0.0, None, None)
     _rows(writer, 10)
-    writer.proc.kill()
-    writer.proc.wait()
-    with pytest.raises(OutputError, match=r"r\.rrd: the Rerun writer stopped"):
+    writer.writer.proc.kill()
+    writer.writer.proc.wait()
+    with pytest.raises(OutputError, match=r"r\.rrd: the writer of the Rerun recording stopped"):
         writer.finish(_Flt())
     writer.abort()
     assert not out.exists() and not list(tmp_path.glob(".*.tmp"))
@@ -87,5 +87,5 @@ def test_abort_removes_the_temporary(tmp_path):
     _rows(writer, 10)
     writer._flush()
     writer.abort()
-    assert writer.proc.returncode is not None
+    assert writer.writer.proc.returncode is not None
     assert not out.exists() and not list(tmp_path.glob(".*.tmp"))
