@@ -26,8 +26,6 @@ from .writerproc import usage
 def peak_rss_mib() -> float:
     """Peak resident memory of this process so far [MiB], its own (`writerproc.usage`: not what Linux
     carries over from the process that started it)."""
-    if sys.platform == "darwin":
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     return usage()["peak_rss_mb"]
 
 

@@ -121,7 +121,7 @@ def usage() -> dict[str, float]:
     The peak is the kernel's high-water mark of this program (`VmHWM`): Linux carries `ru_maxrss` over
     from the process that started this one (the filter's, at the fork), which is not this one's memory."""
     u = resource.getrusage(resource.RUSAGE_SELF)
-    peak = u.ru_maxrss / 1024
+    peak = u.ru_maxrss / (2**20 if sys.platform == "darwin" else 1024)  # bytes on macOS, KiB on Linux
     try:
         for line in Path("/proc/self/status").read_text().splitlines():
             if line.startswith("VmHWM:"):
@@ -154,10 +154,7 @@ def serve(opener: Callable[..., Any], commands: BinaryIO, replies: BinaryIO) -> 
                 _reply(replies, opened=True)
             elif kind == "finish":
                 handler.finish(*args)
-                usage = resource.getrusage(resource.RUSAGE_SELF)
-                _reply(
-                    replies, finished=True, peak_rss_mb=usage.ru_maxrss / 1024, cpu_s=usage.ru_utime + usage.ru_stime
-                )
+                _reply(replies, finished=True, **usage())
                 return 0
             elif kind == "abort":
                 if handler is not None:
