@@ -257,13 +257,14 @@ class UpdateWorkspace:
         self.workers = max(1, int(workers))
         self.keep = max(1, keep_per_cell)
         self._alloc(0, 0)
-        self._spare: list[tuple[np.ndarray, np.ndarray]] = []
+        self._spare: tuple[np.ndarray, np.ndarray] | None = None
 
     def take(self, rows: int) -> tuple[np.ndarray, np.ndarray]:
-        """(xy (>= rows, 2), p (>= rows,)) to write new maps to: a released buffer if it is large enough
+        """(xy (>= rows, 2), p (>= rows,)) to write new maps to: the released buffer if it is large enough
         and unreferenced elsewhere, else a new one with room to grow."""
-        while self._spare:
-            xy, p = self._spare.pop()
+        if self._spare is not None:
+            xy, p = self._spare
+            self._spare = None
             # references: the local name and getrefcount's argument; any view of it adds one
             if len(p) >= rows and sys.getrefcount(xy) == 2 and sys.getrefcount(p) == 2:
                 return xy, p
@@ -272,7 +273,7 @@ class UpdateWorkspace:
 
     def release(self, xy: np.ndarray, p: np.ndarray) -> None:
         """Give back a buffer `take` returned, once the maps written to it are replaced."""
-        self._spare = [(xy, p)]
+        self._spare = (xy, p)
 
     def _alloc(self, cells: int, points: int) -> None:
         self.cell_count = np.zeros((self.workers, cells), dtype=np.int64)
