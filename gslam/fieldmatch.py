@@ -32,6 +32,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from .schedule import next_index
+
 _EMPTY = -1
 
 
@@ -262,15 +264,19 @@ def _match_one(
     out[i, 5] = hits
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _match_all(
     map_xy, map_p, lo, hi, poses, ends, dirs, score_inv, windows, cell_m, kernel, min_p, match, grids, sums, touched
 ):
     n = poses.shape[0]
     workers = grids.shape[0]
     out = np.empty((n, 6))
+    counter = np.zeros(1, dtype=np.int64)
     for w in prange(workers):
-        for i in range(w, n, workers):
+        while True:
+            i = next_index(counter)  # the next particle not taken (gslam.schedule)
+            if i >= n:
+                break
             _match_one(
                 i,
                 map_xy,

@@ -28,6 +28,8 @@ import sys
 import numpy as np
 from numba import njit, prange
 
+from .schedule import next_index
+
 _EMPTY = -1
 
 
@@ -190,7 +192,7 @@ def _update_one(
     return n_out - out_lo
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _update_all(
     map_xy,
     map_p,
@@ -216,8 +218,12 @@ def _update_all(
     n = poses.shape[0]
     workers = cell_count.shape[0]
     counts = np.zeros(n, dtype=np.int64)
+    counter = np.zeros(1, dtype=np.int64)
     for w in prange(workers):
-        for i in range(w, n, workers):
+        while True:
+            i = next_index(counter)  # the next particle not taken (gslam.schedule)
+            if i >= n:
+                break
             counts[i] = _update_one(
                 lo[i],
                 hi[i],

@@ -13,6 +13,7 @@ import numpy as np
 from gslam import __version__
 from mcaplog import channels as ch
 
+from .compiled import skip_blas_probe
 from .outputs import McapResultWriter, RerunResultWriter
 from .runner import RunConfig, SlamRunner
 from .source import InputLog
@@ -91,6 +92,7 @@ def process(
 ) -> ProcessSummary:
     """Run the filter over `input_path`. Ctrl-C or an error mid-run still finishes both outputs with the
     steps done so far (the error is re-raised after)."""
+    skip_blas_probe()
     log = InputLog(input_path)
     # The Rerun writer's process starts first: its start-up overlaps the filter's (compiled code loading).
     rrd_out = None

@@ -1,0 +1,49 @@
+"""Start-up and scheduling of the compiled kernels (gslam.schedule, pipelines.compiled)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+
+from gslam.schedule import next_index
+
+
+def test_next_index_hands_out_each_index_once_across_threads():
+    from numba import njit, prange
+
+    @njit(parallel=True)
+    def take_all(n, workers):
+        taken = np.zeros(n, dtype=np.int64)
+        counter = np.zeros(1, dtype=np.int64)
+        for _w in prange(workers):
+            while True:
+                i = next_index(counter)
+                if i >= n:
+                    break
+                taken[i] += 1
+        return taken
+
+    taken = take_all(10_000, 4)
+    assert (taken == 1).all()  # taken by one worker, whatever the number of workers and threads
+    assert (take_all(7, 1) == 1).all()
+
+
+def test_the_kernels_run_without_numbas_blas_probe_and_scipy_linalg_still_imports():
+    code = """
+import sys
+import numpy as np
+from pipelines.compiled import skip_blas_probe
+skip_blas_probe()
+from gslam.motion import integrate_ackermann
+from gslam.vehicle import VEHICLE_PRESETS
+poses = integrate_ackermann(np.zeros((3, 3)), np.array([[0.0, 1.0, 0.1]]), 1.0, 0.0, VEHICLE_PRESETS["carpark"], None,
+                            0.0, 0.0, 0.0)
+assert poses[0, 0] > 0.9, poses
+assert "scipy.linalg" not in sys.modules, "the probe was not skipped"
+import scipy.linalg.cython_blas  # noqa: F401  (imports as usual afterwards)
+print("ok")
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr
