@@ -160,7 +160,10 @@ class RerunResultWriter:
         if self.snapshot_every and st.event.index % self.snapshot_every == 0:
             self._flush()
             xy, p = flt.map_points(r.best)
-            self.writer.send(("map", st.event.index, st.event.t_s - self.t0_s, np.asarray(xy), np.asarray(p)))
+            # copies: a view would keep the filter's map buffer referenced until the sender thread has
+            # pickled it, and the map update could not write that buffer again (gslam.mapupdate)
+            xy, p = np.array(xy, dtype=np.float32), np.array(p, dtype=np.float32)
+            self.writer.send(("map", st.event.index, st.event.t_s - self.t0_s, xy, p))
         if len(self.pending_scans) >= self.FLUSH_EVERY:
             self._flush()
 
