@@ -89,3 +89,31 @@ def test_abort_removes_the_temporary(tmp_path):
     writer.abort()
     assert writer.writer.proc.returncode is not None
     assert not out.exists() and not list(tmp_path.glob(".*.tmp"))
+
+
+def test_a_map_snapshot_is_sent_as_a_copy_not_a_view_of_the_filters_buffer(tmp_path):
+    """A view waiting in the sender's queue would keep the filter's map buffer referenced, and the map
+    update could not write that buffer again (gslam.mapupdate.UpdateWorkspace)."""
+    from types import SimpleNamespace
+
+    buffer_xy, buffer_p = np.arange(40.0).reshape(20, 2), np.linspace(0.5, 1.0, 20)
+
+    class Flt(_Flt):
+        def map_points(self, particle: int):
+            return buffer_xy[5:15], buffer_p[5:15]
+
+    writer = RerunResultWriter(tmp_path / "s.rrd", GEOMETRY, 25, 0.0, None, None)
+    sent = []
+    writer.writer.send = sent.append
+    result = SimpleNamespace(
+        poses=np.zeros((3, 3)), best_pose=np.zeros(3), best=0, effective_sample_size=3.0, map_points=10
+    )
+    event = SimpleNamespace(index=25, t_s=2.5, ranges_m=np.full(181, 5.0))
+    writer.step(SimpleNamespace(result=result, event=event, step_ms=1.0, laser_pose=np.zeros(3)), Flt())
+    (snapshot,) = [c for c in sent if c[0] == "map"]
+    _, scan, _, xy, p = snapshot
+    assert scan == 25
+    np.testing.assert_allclose(xy, buffer_xy[5:15])
+    np.testing.assert_allclose(p, buffer_p[5:15], rtol=1e-6)
+    assert not np.shares_memory(xy, buffer_xy) and not np.shares_memory(p, buffer_p)
+    writer.abort()
