@@ -192,6 +192,11 @@ def _pose_record_layout() -> np.ndarray:
 
 _POSE_RECORD = _pose_record_layout()
 _POSE_DOUBLES = (5, 14, 23, 34, 43, 52, 61)  # offsets of position x, y, z and orientation x, y, z, w
+_POSE_FIELDS = np.dtype(
+    {"names": ["x", "y", "qz", "qw"], "formats": ["<f8"] * 4, "offsets": [5, 14, 52, 61], "itemsize": 69}
+)
+"""The doubles of a pose record that vary (position z and orientation x, y stay 0), unaligned in place."""
+_POSE_RECORD_BYTES = _POSE_RECORD.tobytes()
 
 
 def poses_in_frame_bytes(t_s: float, poses: np.ndarray, frame_id: str) -> bytes:
@@ -200,15 +205,12 @@ def poses_in_frame_bytes(t_s: float, poses: np.ndarray, frame_id: str) -> bytes:
     poses = np.asarray(poses, dtype=float).reshape(-1, 3)
     head = PosesInFrame(frame_id=frame_id)
     head.timestamp.CopyFrom(timestamp(t_s))
-    rec = np.tile(_POSE_RECORD, (len(poses), 1))
+    buf = bytearray(_POSE_RECORD_BYTES * len(poses))  # the records' tags and zeros, written through `rec`
+    rec = np.frombuffer(buf, dtype=_POSE_FIELDS)
     half = poses[:, 2] / 2
-    zeros = np.zeros(len(poses))
-    for offset, values in zip(
-        _POSE_DOUBLES, (poses[:, 0], poses[:, 1], zeros, zeros, zeros, np.sin(half), np.cos(half)), strict=True
-    ):
-        rec[:, offset : offset + 8] = values.astype("<f8").view(np.uint8).reshape(-1, 8)
+    rec["x"], rec["y"], rec["qz"], rec["qw"] = poses[:, 0], poses[:, 1], np.sin(half), np.cos(half)
     # Serialised messages concatenate as a merge: repeated fields append.
-    return head.SerializeToString() + rec.tobytes()
+    return head.SerializeToString() + bytes(buf)
 
 
 def poses_of(msg: PosesInFrame) -> np.ndarray:
