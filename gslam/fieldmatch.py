@@ -49,26 +49,44 @@ def _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair
     second = -1.0
     k1 = 0
     k2 = 0
-    for ix in range(cx - kernel, cx + kernel + 1):
-        if ix < 0 or ix >= nx:
-            continue
-        for iy in range(cy - kernel, cy + kernel + 1):
-            if iy < 0 or iy >= ny:
+    if kernel < cx < nx - kernel - 1 and kernel < cy < ny - kernel - 1:
+        # every cell searched and every cell in front of one (one step further) lies in the raster: the
+        # same cells in the same order as below, without the bounds tests
+        for ix in range(cx - kernel, cx + kernel + 1):
+            row, front = ix * ny, (ix + fx) * ny + fy
+            for iy in range(cy - kernel, cy + kernel + 1):
+                k = grid[row + iy]
+                if k == _EMPTY or grid[front + iy] != _EMPTY:
+                    continue  # empty, or the cell in front is occupied too: not a surface seen from here
+                dx = ex - mean_xy[k, 0]
+                dy = ey - mean_xy[k, 1]
+                d2 = dx * dx + dy * dy
+                if best < 0.0 or d2 < best:
+                    second, k2 = best, k1
+                    best, k1 = d2, k
+                elif second < 0.0 or d2 < second:
+                    second, k2 = d2, k
+    else:
+        for ix in range(cx - kernel, cx + kernel + 1):
+            if ix < 0 or ix >= nx:
                 continue
-            k = grid[ix * ny + iy]
-            if k == _EMPTY:
-                continue
-            jx, jy = ix + fx, iy + fy
-            if 0 <= jx < nx and 0 <= jy < ny and grid[jx * ny + jy] != _EMPTY:
-                continue  # the cell in front is occupied too: not a surface seen from this side
-            dx = ex - mean_xy[k, 0]
-            dy = ey - mean_xy[k, 1]
-            d2 = dx * dx + dy * dy
-            if best < 0.0 or d2 < best:
-                second, k2 = best, k1
-                best, k1 = d2, k
-            elif second < 0.0 or d2 < second:
-                second, k2 = d2, k
+            for iy in range(cy - kernel, cy + kernel + 1):
+                if iy < 0 or iy >= ny:
+                    continue
+                k = grid[ix * ny + iy]
+                if k == _EMPTY:
+                    continue
+                jx, jy = ix + fx, iy + fy
+                if 0 <= jx < nx and 0 <= jy < ny and grid[jx * ny + jy] != _EMPTY:
+                    continue  # the cell in front is occupied too: not a surface seen from this side
+                dx = ex - mean_xy[k, 0]
+                dy = ey - mean_xy[k, 1]
+                d2 = dx * dx + dy * dy
+                if best < 0.0 or d2 < best:
+                    second, k2 = best, k1
+                    best, k1 = d2, k
+                elif second < 0.0 or d2 < second:
+                    second, k2 = d2, k
     if pair_d2 > 0.0 and second >= 0.0:
         # point to line: the two nearest means, when close enough to be neighbouring samples of one
         # surface, define its local direction; the distance is taken across it (PL-ICP, Censi 2008)
