@@ -38,6 +38,20 @@ _EMPTY = -1
 
 
 @njit(cache=True, inline="always")
+def _nearer(ex, ey, k, mean_xy, best, second, k1, k2):
+    """The two nearest cell means so far (squared distances best <= second, cells k1, k2; -1: none yet),
+    updated with cell k's mean."""
+    dx = ex - mean_xy[k, 0]
+    dy = ey - mean_xy[k, 1]
+    d2 = dx * dx + dy * dy
+    if best < 0.0 or d2 < best:
+        return d2, best, k, k1
+    if second < 0.0 or d2 < second:
+        return best, d2, k1, k
+    return best, second, k1, k2
+
+
+@njit(cache=True, inline="always")
 def _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2):
     """(squared distance from (ex, ey) to the map, True when it is taken across the line through the two
     nearest usable cell means) or (-1, False) when no usable cell is found."""
@@ -58,14 +72,7 @@ def _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair
                 k = grid[row + iy]
                 if k == _EMPTY or grid[front + iy] != _EMPTY:
                     continue  # empty, or the cell in front is occupied too: not a surface seen from here
-                dx = ex - mean_xy[k, 0]
-                dy = ey - mean_xy[k, 1]
-                d2 = dx * dx + dy * dy
-                if best < 0.0 or d2 < best:
-                    second, k2 = best, k1
-                    best, k1 = d2, k
-                elif second < 0.0 or d2 < second:
-                    second, k2 = d2, k
+                best, second, k1, k2 = _nearer(ex, ey, k, mean_xy, best, second, k1, k2)
     else:
         for ix in range(cx - kernel, cx + kernel + 1):
             if ix < 0 or ix >= nx:
@@ -79,14 +86,7 @@ def _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair
                 jx, jy = ix + fx, iy + fy
                 if 0 <= jx < nx and 0 <= jy < ny and grid[jx * ny + jy] != _EMPTY:
                     continue  # the cell in front is occupied too: not a surface seen from this side
-                dx = ex - mean_xy[k, 0]
-                dy = ey - mean_xy[k, 1]
-                d2 = dx * dx + dy * dy
-                if best < 0.0 or d2 < best:
-                    second, k2 = best, k1
-                    best, k1 = d2, k
-                elif second < 0.0 or d2 < second:
-                    second, k2 = d2, k
+                best, second, k1, k2 = _nearer(ex, ey, k, mean_xy, best, second, k1, k2)
     if pair_d2 > 0.0 and second >= 0.0:
         # point to line: the two nearest means, when close enough to be neighbouring samples of one
         # surface, define its local direction; the distance is taken across it (PL-ICP, Censi 2008)
