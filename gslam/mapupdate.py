@@ -282,9 +282,11 @@ class UpdateWorkspace:
         self._spare = (xy, p)
 
     def _alloc(self, cells: int, points: int) -> None:
-        self.cell_count = np.zeros((self.workers, cells), dtype=np.int64)
+        # int32 counts and point indices: the cell arrays span the whole window (tens of MB on an outdoor
+        # log with 80 m returns) and are touched at random, so their size is what the update waits on
+        self.cell_count = np.zeros((self.workers, cells), dtype=np.int32)
         self.cell_sum = np.zeros((self.workers, cells))
-        self.cell_top = np.zeros((self.workers, cells, self.keep), dtype=np.int64)
+        self.cell_top = np.zeros((self.workers, cells, self.keep), dtype=np.int32)
         self.touched = np.zeros((self.workers, points), dtype=np.int64)
 
     def reserve(self, cells: int, points: int) -> None:
