@@ -69,6 +69,7 @@ def _update_one(
     cell_sum,
     cell_top,
     touched,
+    cand_cell,
     out_xy,
     out_p,
     out_lo,
@@ -130,6 +131,7 @@ def _update_one(
         out_xy[cand_start + n_cand, 0] = x
         out_xy[cand_start + n_cand, 1] = y
         out_p[cand_start + n_cand] = p
+        cand_cell[n_cand] = g  # its cell, for step 3
         n_cand += 1
     # 2. New points around every return: z_hat ~ N(z, sigma_r), bearing ~ N(b, sigma_b); the small bearing
     # noise turns the return's direction by a rotation expanded to third order (error < 1e-9 at 5 sigma).
@@ -153,6 +155,7 @@ def _update_one(
             out_xy[cand_start + n_cand, 0] = x
             out_xy[cand_start + n_cand, 1] = y
             out_p[cand_start + n_cand] = p
+            cand_cell[n_cand] = g
             n_cand += 1
     for u in range(used):
         cell_count[touched[u]] = 0
@@ -162,8 +165,7 @@ def _update_one(
         p = out_p[k]
         if p < prune:
             continue
-        x, y = out_xy[k, 0], out_xy[k, 1]
-        g = int(math.floor((x - x0) / cell_m)) * ny + int(math.floor((y - y0) / cell_m))
+        g = cand_cell[k - cand_start]  # the cell steps 1 and 2 found for it
         if cell_count[g] == 0:
             touched[used] = g
             used += 1
@@ -211,6 +213,7 @@ def _update_all(
     cell_sum,
     cell_top,
     touched,
+    cand_cell,
     out_lo,
     out_xy,
     out_p,
@@ -242,6 +245,7 @@ def _update_all(
                 cell_sum[w],
                 cell_top[w],
                 touched[w],
+                cand_cell[w],
                 out_xy,
                 out_p,
                 out_lo[i],
@@ -288,6 +292,7 @@ class UpdateWorkspace:
         self.cell_sum = np.zeros((self.workers, cells))
         self.cell_top = np.zeros((self.workers, cells, self.keep), dtype=np.int32)
         self.touched = np.zeros((self.workers, points), dtype=np.int64)
+        self.cand_cell = np.zeros((self.workers, points), dtype=np.int64)  # each candidate's cell
 
     def reserve(self, cells: int, points: int) -> None:
         if cells > self.cell_count.shape[1] or points > self.touched.shape[1]:
@@ -369,6 +374,7 @@ def update_maps(
         workspace.cell_sum,
         workspace.cell_top,
         workspace.touched,
+        workspace.cand_cell,
         out_lo,
         out_xy,
         out_p,
