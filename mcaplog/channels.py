@@ -193,7 +193,12 @@ def _pose_record_layout() -> np.ndarray:
 _POSE_RECORD = _pose_record_layout()
 _POSE_DOUBLES = (5, 14, 23, 34, 43, 52, 61)  # offsets of position x, y, z and orientation x, y, z, w
 _POSE_FIELDS = np.dtype(
-    {"names": ["x", "y", "qz", "qw"], "formats": ["<f8"] * 4, "offsets": [5, 14, 52, 61], "itemsize": 69}
+    {
+        "names": ["x", "y", "qz", "qw"],
+        "formats": ["<f8"] * 4,
+        "offsets": [_POSE_DOUBLES[i] for i in (0, 1, 5, 6)],
+        "itemsize": len(_POSE_RECORD),
+    }
 )
 """The doubles of a pose record that vary (position z and orientation x, y stay 0), unaligned in place."""
 _POSE_RECORD_BYTES = _POSE_RECORD.tobytes()

@@ -18,15 +18,9 @@ from pathlib import Path
 
 from gslam.config import FilterConfig
 
+from .process import peak_rss_mb as peak_rss_mib  # this process's own peak (VmHWM), in MiB
 from .process import process
 from .runner import RunConfig
-from .writerproc import usage
-
-
-def peak_rss_mib() -> float:
-    """Peak resident memory of this process so far [MiB], its own (`writerproc.usage`: not what Linux
-    carries over from the process that started it)."""
-    return usage()["peak_rss_mb"]
 
 
 def current_rss_mib() -> float:
