@@ -177,10 +177,6 @@ def info(
         typer.echo(f"  metadata {name}: {json.dumps(record)[:200]}")
 
 
-def run() -> None:  # pragma: no cover
-    app()
-
-
 @app.command()
 @guarded
 def process(
@@ -529,5 +525,16 @@ def sweep(
         fail(f"{result.failed} of {len(result.records)} tasks failed (their errors: {result.md_path})", code=1)
 
 
+def run() -> None:
+    """The `gslam` console script: the typer app, then `compiled.freeze_heap` on the way out (every
+    command, whatever its exit: the interpreter's teardown no longer walks numba's objects)."""
+    from .compiled import freeze_heap
+
+    try:
+        app()
+    finally:
+        freeze_heap()
+
+
 if __name__ == "__main__":  # python -m pipelines.cli
-    app()
+    run()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import sys
 
 
@@ -22,3 +23,16 @@ def skip_blas_probe() -> None:
         import numba.np.arraymath  # noqa: F401
     finally:
         del sys.modules[probe]
+
+
+def freeze_heap() -> None:
+    """Leave every object alive now out of the cyclic garbage collector (`gc.freeze`), for a process
+    about to exit. Numba's compiler keeps hundreds of thousands of objects (its typing and lowering
+    registries, loaded at the first dispatch of a compiled kernel); the interpreter's teardown collects
+    them, which took ~0.25 s of every `gslam process` run on this machine (a Car Park run at N 8: 2.55 s
+    -> 2.31 s, medians of 7 alternating runs). Frozen objects are still freed by their reference counts,
+    and `atexit` handlers, `weakref.finalize` callbacks and file flushes run as before: only the
+    collector's walk over them is skipped.
+
+    Called by the `gslam` script when its command has returned, never by the library."""
+    gc.freeze()

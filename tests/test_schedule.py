@@ -47,3 +47,27 @@ print("ok")
 """
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr
+
+
+def test_the_gslam_script_freezes_the_heap_on_exit_and_keeps_exit_codes_output_and_atexit(tmp_path):
+    code = """
+import atexit, gc, sys
+from pipelines import cli
+atexit.register(lambda: print("atexit ran, frozen:", gc.get_freeze_count() > 0, flush=True))
+sys.argv = ["gslam", *sys.argv[1:]]
+cli.run()
+"""
+    ok = subprocess.run([sys.executable, "-c", code, "--version"], capture_output=True, text=True, timeout=300)
+    assert ok.returncode == 0, ok.stderr
+    assert ok.stdout.splitlines()[0].startswith("gslam "), ok.stdout
+    assert "atexit ran, frozen: True" in ok.stdout
+    missing = tmp_path / "missing.mcap"
+    bad = subprocess.run(
+        [sys.executable, "-c", code, "process", str(missing), str(tmp_path / "out.mcap")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert bad.returncode != 0
+    assert "atexit ran, frozen: True" in bad.stdout
+    assert "Traceback" not in bad.stderr and "missing.mcap" in bad.stderr, bad.stderr
