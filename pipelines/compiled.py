@@ -34,5 +34,5 @@ def freeze_heap() -> None:
     and `atexit` handlers, `weakref.finalize` callbacks and file flushes run as before: only the
     collector's walk over them is skipped.
 
-    Called by the `gslam` script when its command has returned, never by the library."""
+    Called by the `gslam` script before its command and when it has returned, never by the library."""
     gc.freeze()

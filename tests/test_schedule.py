@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -71,3 +72,19 @@ cli.run()
     assert bad.returncode != 0
     assert "atexit ran, frozen: True" in bad.stdout
     assert "Traceback" not in bad.stderr and "missing.mcap" in bad.stderr, bad.stderr
+
+
+def test_the_pipelines_start_numpy_without_openblas_threads_and_keep_a_users_setting():
+    code = """
+import os, sys
+import pipelines.cli  # noqa: F401  (imports numpy)
+tasks = len(os.listdir("/proc/self/task")) if sys.platform == "linux" else 1
+print(os.environ["OPENBLAS_NUM_THREADS"], tasks)
+"""
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["1", "1"], out.stdout  # one thread: the interpreter's own
+    env["OPENBLAS_NUM_THREADS"] = "2"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
+    assert out.stdout.split()[0] == "2", out.stdout
