@@ -33,10 +33,44 @@ from .schedule import next_index
 _EMPTY = -1
 
 
+_TWO_PI = 2.0 * math.pi
+
+
 @njit(cache=True, inline="always")
-def _q(d, hit_sigma, hit_ratio, free_ratio):
-    """q (eq. 6) of a point `d` metres beyond the return of its beam (negative: in front of it)."""
-    g = math.exp(-0.5 * (d / hit_sigma) ** 2)
+def _wrap(a):
+    """(a + pi) % 2 pi - pi with Python's float modulo, bit for bit, without its call into numba's
+    helper library where a + pi lies within 2 pi of [0, 2 pi) (always, for a bearing in (-2 pi, 2 pi)):
+    fmod is exact, and so are x - 2 pi for x in [2 pi, 4 pi) (Sterbenz) and the modulo's own x + 2 pi
+    for x in (-2 pi, 0)."""
+    x = a + math.pi
+    if 0.0 <= x < _TWO_PI:
+        pass
+    elif _TWO_PI <= x < 2.0 * _TWO_PI:
+        x = x - _TWO_PI
+    elif -_TWO_PI < x < 0.0:
+        x = x + _TWO_PI
+    else:
+        x = x % _TWO_PI
+    return x - math.pi
+
+
+def far_z2(hit_ratio: float, free_ratio: float) -> float:
+    """The z^2 = (d / hit_sigma)^2 beyond which q (eq. 6) is exactly 1 or `free_ratio` in floating point:
+    the bump's term (ratio difference x exp(-z^2 / 2)) is below an eighth of the spacing of the value it
+    is added to, so the sum rounds to that value whatever exp returns there (within a factor 2)."""
+    coef = max(abs(hit_ratio - 1.0), abs(hit_ratio - free_ratio))
+    if coef == 0.0:
+        return -1.0
+    spacing = min(float(np.spacing(1.0)), float(np.spacing(np.float64(free_ratio)))) if free_ratio > 0 else 5e-324
+    return 2.0 * (math.log(16.0 * coef) - math.log(spacing))
+
+
+@njit(cache=True, inline="always")
+def _q(d, hit_sigma, hit_ratio, free_ratio, far):
+    """q (eq. 6) of a point `d` metres beyond the return of its beam (negative: in front of it); beyond
+    `far` (`far_z2`) the Gaussian bump is not computed, as it cannot change q."""
+    z2 = (d / hit_sigma) ** 2
+    g = 0.0 if z2 > far else math.exp(-0.5 * z2)  # beyond `far`, g x the ratio difference rounds away
     if d > 0.0:
         return 1.0 + (hit_ratio - 1.0) * g
     return free_ratio + (hit_ratio - free_ratio) * g
@@ -85,6 +119,7 @@ def _update_one(
         params[6],
     )
     keep_per_cell = int(params[7])
+    far = params[8]
     beams = ranges.shape[0]
     px, py, ph = pose[0], pose[1], pose[2]
     # The window: pose and end points of the returns, grown by the margin.
@@ -123,11 +158,10 @@ def _update_one(
         cell_sum[g] += p  # the prior of new points: p before this update
         dx, dy = x - px, y - py
         r = math.sqrt(dx * dx + dy * dy)
-        bearing = math.atan2(dy, dx) - ph
-        bearing = (bearing + math.pi) % (2.0 * math.pi) - math.pi
+        bearing = _wrap(math.atan2(dy, dx) - ph)
         j = int(math.floor((bearing - start_rad) / inc_rad + 0.5))
         if 0 <= j < beams and r < max_range:
-            p = _logit_update(p, _q(r - ranges[j], hit_sigma, hit_ratio, free_ratio))
+            p = _logit_update(p, _q(r - ranges[j], hit_sigma, hit_ratio, free_ratio, far))
         out_xy[cand_start + n_cand, 0] = x
         out_xy[cand_start + n_cand, 1] = y
         out_p[cand_start + n_cand] = p
@@ -151,7 +185,7 @@ def _update_one(
                 continue
             g = int(math.floor((x - x0) / cell_m)) * ny + int(math.floor((y - y0) / cell_m))
             prior = cell_sum[g] / cell_count[g] if cell_count[g] > 0 else prior_p0
-            p = _logit_update(prior, _q(z_hat - ranges[j], hit_sigma, hit_ratio, free_ratio))
+            p = _logit_update(prior, _q(z_hat - ranges[j], hit_sigma, hit_ratio, free_ratio, far))
             out_xy[cand_start + n_cand, 0] = x
             out_xy[cand_start + n_cand, 1] = y
             out_p[cand_start + n_cand] = p
@@ -353,6 +387,7 @@ def update_maps(
             prior_p0,
             3 * hit_sigma_m,
             max_points_per_cell,
+            far_z2(hit_ratio, free_ratio),
         ]
     )
     out_xy, out_p = workspace.take(int(out_lo[-1]))

@@ -150,3 +150,39 @@ def test_maps_a_caller_holds_do_not_change_under_later_updates():
     for xy, p, xy0, p0 in held.values():
         np.testing.assert_array_equal(xy, xy0)
         np.testing.assert_array_equal(p, p0)
+
+
+@pytest.mark.parametrize(
+    "hit_ratio, free_ratio", [(3.0, 0.9), (3.0, 0.5), (1e6, 0.1), (0.5, 0.9), (1.0, 1.0), (2.0, 0.0)]
+)
+def test_q_without_its_far_gaussian_is_the_same_bit_for_bit(hit_ratio, free_ratio):
+    """Beyond far_z2 the bump is not computed; q must be exactly what computing it gives."""
+    from gslam.mapupdate import _q, far_z2
+
+    far = far_z2(hit_ratio, free_ratio)
+    rng = np.random.default_rng(1)
+    sigma = 0.2
+    d = np.concatenate([rng.uniform(-100, 100, 20_000), rng.normal(0, 3 * sigma, 20_000)])
+    edge = sigma * math.sqrt(max(far, 0.0))  # where the shortcut starts
+    d = np.concatenate([d, np.outer([-edge, edge], [1 - 1e-9, 1.0, 1 + 1e-9]).ravel()])
+    skipped = 0
+    for x in d:
+        a, b = _q(x, sigma, hit_ratio, free_ratio, far), _q(x, sigma, hit_ratio, free_ratio, math.inf)
+        assert a == b and math.copysign(1, a) == math.copysign(1, b), (x, a, b)
+        skipped += (x / sigma) ** 2 > far
+    assert skipped > 10_000  # the shortcut was taken
+    assert math.isnan(_q(math.nan, sigma, hit_ratio, free_ratio, far))
+
+
+def test_bearing_wrap_is_pythons_modulo_bit_for_bit():
+    from gslam.mapupdate import _wrap
+
+    rng = np.random.default_rng(2)
+    two_pi = 2 * math.pi
+    edges = np.array([-2 * two_pi, -two_pi, -math.pi, 0.0, math.pi, two_pi, 2 * two_pi]) - math.pi
+    a = np.concatenate([rng.uniform(-4 * math.pi, 4 * math.pi, 50_000), rng.uniform(-50, 50, 5_000), edges])
+    a = np.concatenate([a, np.nextafter(edges, np.inf), np.nextafter(edges, -np.inf), [-0.0, 0.0]])
+    for x in a:
+        want = (x + math.pi) % two_pi - math.pi
+        got = _wrap(x)
+        assert got == want and math.copysign(1, got) == math.copysign(1, want), (x, got, want)
