@@ -254,27 +254,37 @@ def process(
     ] = False,
 ) -> None:
     """Run G-SLAM (or a baseline) over an input MCAP; write the result MCAP and a Rerun recording."""
-    from pipelines.options import Setting, parse_set, run_config
-    from pipelines.process import process as run_process
+    from pipelines.writerproc import start_rerun_writer
 
-    flags = [("particles", particles, "--particles"), ("points_per_observation", points, "--points")]
-    flags.append(("seed", seed, "--seed"))
-    filter_settings = [parse_set(item) for item in set_ or []]
-    filter_settings += [Setting(k, v, f"{flag} {v}") for k, v, flag in flags if v is not None]
-    run_flags = [
-        ("vehicle", vehicle, "--vehicle"),
-        ("max_scans", max_scans, "--max-scans"),
-        ("method", method, "--method"),
-        ("grid_cells", grid_cells, "--grid-cells"),
-        ("threads", threads, "--threads"),
-        ("occupancy", True if occupancy else None, "--occupancy"),
-    ]
-    run_settings = [Setting(k, getattr(v, "value", v), f"{flag} {v}") for k, v, flag in run_flags if v is not None]
-    cfg = run_config(config, filter_settings, run_settings)
     rrd_path = None if no_rrd else (rrd or output.with_suffix(".rrd"))
-    check_outputs({"OUTPUT": output, "--rrd": rrd_path}, {"INPUT": input, "--config": config})
-    with reporting("G-SLAM", "scans") as (report, _):
-        summary = run_process(input, output, rrd_path, cfg, report, command=invocation(ctx))
+    # The Rerun writer's process starts before the filter's modules are imported (numpy, numba: ~0.4 s of
+    # one thread), so that its own start-up (importing rerun) runs beside them on the other core.
+    rrd_writer = None if rrd_path is None else start_rerun_writer(rrd_path)
+    try:
+        from pipelines.options import Setting, parse_set, run_config
+        from pipelines.process import process as run_process
+
+        flags = [("particles", particles, "--particles"), ("points_per_observation", points, "--points")]
+        flags.append(("seed", seed, "--seed"))
+        filter_settings = [parse_set(item) for item in set_ or []]
+        filter_settings += [Setting(k, v, f"{flag} {v}") for k, v, flag in flags if v is not None]
+        run_flags = [
+            ("vehicle", vehicle, "--vehicle"),
+            ("max_scans", max_scans, "--max-scans"),
+            ("method", method, "--method"),
+            ("grid_cells", grid_cells, "--grid-cells"),
+            ("threads", threads, "--threads"),
+            ("occupancy", True if occupancy else None, "--occupancy"),
+        ]
+        run_settings = [Setting(k, getattr(v, "value", v), f"{flag} {v}") for k, v, flag in run_flags if v is not None]
+        cfg = run_config(config, filter_settings, run_settings)
+        check_outputs({"OUTPUT": output, "--rrd": rrd_path}, {"INPUT": input, "--config": config})
+        with reporting("G-SLAM", "scans") as (report, _):
+            summary = run_process(input, output, rrd_path, cfg, report, command=invocation(ctx), rrd_writer=rrd_writer)
+    except BaseException:
+        if rrd_writer is not None:
+            rrd_writer.abort()  # nothing to do once the run has finished or aborted it
+        raise
     typer.echo(summary.describe())
     typer.echo(f"wrote {summary.output}")
     if summary.rrd is not None:

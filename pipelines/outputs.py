@@ -16,7 +16,7 @@ from mcaplog.mcapio import AtomicMcapWriter, to_ns
 from mcaplog.tempfiles import temporary_for
 
 from .runner import Step
-from .writerproc import WriterProcess
+from .writerproc import WriterProcess, start_rerun_writer
 
 
 def covariance_ellipses(mean: np.ndarray, cov: np.ndarray, sigmas: float = 3.0, n: int = 24) -> list[np.ndarray]:
@@ -126,7 +126,9 @@ class RerunResultWriter:
         gps: np.ndarray | None,
         landmarks: np.ndarray | None,
         app_id: str = "gslam",
+        writer: WriterProcess | None = None,
     ) -> None:
+        """`writer`: the writer process started beforehand by `writerproc.start_rerun_writer`, if any."""
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.tmp = temporary_for(self.path)
@@ -139,9 +141,8 @@ class RerunResultWriter:
         self.pending_scans: list[tuple[np.ndarray, np.ndarray]] = []
         self.pending_particles: list[np.ndarray] = []
         self.finished = False
-        self.writer = WriterProcess(
-            "pipelines.rrdwriter", "the Rerun recording", self.path, (str(self.tmp.resolve()), app_id, gps, landmarks)
-        )
+        self.writer = writer if writer is not None else start_rerun_writer(self.path)
+        self.writer.open((str(self.tmp.resolve()), app_id, gps, landmarks))
 
     # --- the steps ----------------------------------------------------------------------------
     def step(self, st: Step, flt: SlamFilter) -> None:

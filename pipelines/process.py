@@ -17,7 +17,7 @@ from .compiled import skip_blas_probe
 from .outputs import McapResultWriter, RerunResultWriter
 from .runner import RunConfig, SlamRunner
 from .source import InputLog
-from .writerproc import usage
+from .writerproc import WriterProcess, usage
 
 
 @dataclass
@@ -89,17 +89,35 @@ def process(
     cfg: RunConfig,
     progress: Callable[[int, int, float], None] | None = None,
     command: str | None = None,
+    rrd_writer: WriterProcess | None = None,
 ) -> ProcessSummary:
     """Run the filter over `input_path`. Ctrl-C or an error mid-run still finishes both outputs with the
-    steps done so far (the error is re-raised after)."""
-    skip_blas_probe()
-    log = InputLog(input_path)
-    # The Rerun writer's process starts first: its start-up overlaps the filter's (compiled code loading).
+    steps done so far (the error is re-raised after). `rrd_writer`: the Rerun recording's writer process,
+    started beforehand by `writerproc.start_rerun_writer(rrd_path)` so that its start-up overlaps the
+    caller's (aborted here if the run cannot start)."""
+    try:
+        log = InputLog(input_path)
+    except BaseException:
+        if rrd_writer is not None:
+            rrd_writer.abort()
+        raise
+    # The Rerun writer's process starts first: its start-up (importing rerun, ~0.5 s of processor time)
+    # overlaps the filter's, which is one thread until its first update (numba's registries, loading the
+    # compiled kernels) and leaves the other core idle.
     rrd_out = None
     if rrd_path is not None:
-        rrd_out = RerunResultWriter(
-            rrd_path, log.geometry, cfg.map_snapshot_every, log.start_s, log.gps_array(), _landmarks(log)
-        )
+        try:
+            gps, landmarks = log.gps_array(), _landmarks(log)
+            rrd_out = RerunResultWriter(
+                rrd_path, log.geometry, cfg.map_snapshot_every, log.start_s, gps, landmarks, writer=rrd_writer
+            )
+        except BaseException:
+            if rrd_writer is not None:
+                rrd_writer.abort()
+            raise
+    elif rrd_writer is not None:
+        rrd_writer.abort()
+    skip_blas_probe()
     try:
         runner = SlamRunner(log, cfg)
     except BaseException:

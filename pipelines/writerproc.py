@@ -39,7 +39,8 @@ def _environment() -> dict[str, str]:
 class WriterProcess:
     """A writer process for the output `path`, described to the user as `what` in its errors."""
 
-    def __init__(self, module: str, what: str, path: Path, open_command: tuple) -> None:
+    def __init__(self, module: str, what: str, path: Path, open_command: tuple | None = None) -> None:
+        """Start `python -m module`; `open_command` now, or later with `open` (until then only `abort`)."""
         self.what = what
         self.path = Path(path)
         self.peak_rss_mb = float("nan")
@@ -57,6 +58,11 @@ class WriterProcess:
         self._send_error: OSError | None = None
         self._sender = threading.Thread(target=self._send_loop, name=f"{module}-sender", daemon=True)
         self._sender.start()
+        if open_command is not None:
+            self.open(open_command)
+
+    def open(self, open_command: tuple) -> None:
+        """Have the writer open its file: the handler's arguments."""
         self.send(("open", *open_command))
 
     def _send_loop(self) -> None:
@@ -112,6 +118,13 @@ class WriterProcess:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
+
+
+def start_rerun_writer(path: Path) -> WriterProcess:
+    """The Rerun recording's writer process (`pipelines.rrdwriter`) for `path`, started before it is
+    opened (`RerunResultWriter(..., writer=...)`): it imports rerun (~0.5 s of processor time) while its
+    caller starts up, on the core the caller's one thread leaves idle."""
+    return WriterProcess("pipelines.rrdwriter", "the Rerun recording", path)
 
 
 # --- the writer process's side -------------------------------------------------------------------

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -153,3 +154,33 @@ def test_parser_never_fails_unclearly(text):
     else:
         assert table.rows.shape[1] == 3
         assert np.isfinite(table.rows).all()
+
+
+def _child_processes() -> list[int]:
+    """Processes whose parent is this one (Linux /proc)."""
+    me, out = os.getpid(), []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                stat = Path(f"/proc/{entry}/stat").read_text()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == me:
+                out.append(int(entry))
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc to list child processes")
+def test_a_run_that_cannot_start_ends_the_rerun_writer_it_started_and_leaves_no_files(tmp_path):
+    """`gslam process` starts the Rerun writer's process before it reads its input or its options: when
+    those fail, that process is ended and no recording or temporary is left."""
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"not an mcap")
+    before = set(_child_processes())
+    assert_one_line_error(run_cli("process", str(bad), str(tmp_path / "out.mcap")), "bad.mcap")
+    src = write_sydney(tmp_path / "log")
+    ingest(src, tmp_path / "in.mcap")
+    res = run_cli("process", str(tmp_path / "in.mcap"), str(tmp_path / "out2.mcap"), "--set", "bogus=1")
+    assert_one_line_error(res, "bogus")
+    assert set(_child_processes()) <= before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.mcap", "in.mcap", "log"]
