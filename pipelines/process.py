@@ -95,28 +95,23 @@ def process(
     steps done so far (the error is re-raised after). `rrd_writer`: the Rerun recording's writer process,
     started beforehand by `writerproc.start_rerun_writer(rrd_path)` so that its start-up overlaps the
     caller's (aborted here if the run cannot start)."""
+    # The Rerun writer's process starts before the filter (here, or earlier by the caller): its start-up
+    # (importing rerun, ~0.5 s of processor time) overlaps the filter's, which is one thread until its first
+    # update (numba's registries, loading the compiled kernels) and leaves the other core idle.
+    rrd_out = None
     try:
         log = InputLog(input_path)
-    except BaseException:
-        if rrd_writer is not None:
-            rrd_writer.abort()
-        raise
-    # The Rerun writer's process starts first: its start-up (importing rerun, ~0.5 s of processor time)
-    # overlaps the filter's, which is one thread until its first update (numba's registries, loading the
-    # compiled kernels) and leaves the other core idle.
-    rrd_out = None
-    if rrd_path is not None:
-        try:
+        if rrd_path is not None:
             gps, landmarks = log.gps_array(), _landmarks(log)
             rrd_out = RerunResultWriter(
                 rrd_path, log.geometry, cfg.map_snapshot_every, log.start_s, gps, landmarks, writer=rrd_writer
             )
-        except BaseException:
-            if rrd_writer is not None:
-                rrd_writer.abort()
-            raise
-    elif rrd_writer is not None:
-        rrd_writer.abort()
+    except BaseException:
+        if rrd_writer is not None:
+            rrd_writer.abort()
+        raise
+    if rrd_out is None and rrd_writer is not None:
+        rrd_writer.abort()  # started for a recording this run does not write
     skip_blas_probe()
     try:
         runner = SlamRunner(log, cfg)
