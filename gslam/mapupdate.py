@@ -28,30 +28,10 @@ import sys
 import numpy as np
 from numba import njit, prange
 
+from .motion import wrap_angle_scalar
 from .schedule import next_index
 
 _EMPTY = -1
-
-
-_TWO_PI = 2.0 * math.pi
-
-
-@njit(cache=True, inline="always")
-def _wrap(a):
-    """(a + pi) % 2 pi - pi with Python's float modulo, bit for bit, without its call into numba's
-    helper library where a + pi lies within 2 pi of [0, 2 pi) (always, for a bearing in (-2 pi, 2 pi)):
-    fmod is exact, and so are x - 2 pi for x in [2 pi, 4 pi) (Sterbenz) and the modulo's own x + 2 pi
-    for x in (-2 pi, 0)."""
-    x = a + math.pi
-    if 0.0 <= x < _TWO_PI:
-        pass
-    elif _TWO_PI <= x < 2.0 * _TWO_PI:
-        x = x - _TWO_PI
-    elif -_TWO_PI < x < 0.0:
-        x = x + _TWO_PI
-    else:
-        x = x % _TWO_PI
-    return x - math.pi
 
 
 def far_z2(hit_ratio: float, free_ratio: float) -> float:
@@ -158,7 +138,7 @@ def _update_one(
         cell_sum[g] += p  # the prior of new points: p before this update
         dx, dy = x - px, y - py
         r = math.sqrt(dx * dx + dy * dy)
-        bearing = _wrap(math.atan2(dy, dx) - ph)
+        bearing = wrap_angle_scalar(math.atan2(dy, dx) - ph)
         j = int(math.floor((bearing - start_rad) / inc_rad + 0.5))
         if 0 <= j < beams and r < max_range:
             p = _logit_update(p, _q(r - ranges[j], hit_sigma, hit_ratio, free_ratio, far))

@@ -14,6 +14,27 @@ def wrap_angle(a: np.ndarray | float) -> np.ndarray | float:
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
 
 
+_TWO_PI = 2.0 * math.pi
+
+
+@njit(cache=True, inline="always")
+def wrap_angle_scalar(a: float) -> float:  # pragma: no cover - compiled
+    """`wrap_angle` of one angle, for compiled loops: (a + pi) % 2 pi - pi with Python's float modulo,
+    bit for bit, without its call into numba's helper library where a + pi lies within 2 pi of [0, 2 pi)
+    (always, for a sum or difference of two angles in [-pi, pi]): fmod is exact, and so are x - 2 pi for x in
+    [2 pi, 4 pi) (Sterbenz) and the modulo's own x + 2 pi for x in (-2 pi, 0)."""
+    x = a + math.pi
+    if 0.0 <= x < _TWO_PI:
+        pass
+    elif _TWO_PI <= x < 2.0 * _TWO_PI:
+        x = x - _TWO_PI
+    elif -_TWO_PI < x < 0.0:
+        x = x + _TWO_PI
+    else:
+        x = x % _TWO_PI
+    return x - math.pi
+
+
 def ackermann_step(
     poses: np.ndarray,
     speed_mps: np.ndarray | float,
@@ -99,7 +120,7 @@ def _ackermann_chain(poses, dt, v, s, L, H, a, b):  # pragma: no cover - compile
             yaw_rate = vc / L * tan_s
             poses[i, 0] += dt[k] * (vc * c - yaw_rate * (a * sn + b * c))
             poses[i, 1] += dt[k] * (vc * sn + yaw_rate * (a * c - b * sn))
-            poses[i, 2] = (phi + dt[k] * yaw_rate + math.pi) % (2.0 * math.pi) - math.pi
+            poses[i, 2] = wrap_angle_scalar(phi + dt[k] * yaw_rate)
 
 
 def odometry_delta(prev: np.ndarray, cur: np.ndarray) -> tuple[float, float, float]:
@@ -166,4 +187,4 @@ def _compose(poses, i, mx, my, mth, out):  # pragma: no cover - compiled
     c, s = math.cos(poses[i, 2]), math.sin(poses[i, 2])
     out[i, 0] = poses[i, 0] + c * mx - s * my
     out[i, 1] = poses[i, 1] + s * mx + c * my
-    out[i, 2] = (poses[i, 2] + mth + math.pi) % (2.0 * math.pi) - math.pi
+    out[i, 2] = wrap_angle_scalar(poses[i, 2] + mth)

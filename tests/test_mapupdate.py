@@ -175,7 +175,7 @@ def test_q_without_its_far_gaussian_is_the_same_bit_for_bit(hit_ratio, free_rati
 
 
 def test_bearing_wrap_is_pythons_modulo_bit_for_bit():
-    from gslam.mapupdate import _wrap
+    from gslam.motion import wrap_angle_scalar
 
     rng = np.random.default_rng(2)
     two_pi = 2 * math.pi
@@ -184,5 +184,5 @@ def test_bearing_wrap_is_pythons_modulo_bit_for_bit():
     a = np.concatenate([a, np.nextafter(edges, np.inf), np.nextafter(edges, -np.inf), [-0.0, 0.0]])
     for x in a:
         want = (x + math.pi) % two_pi - math.pi
-        got = _wrap(x)
+        got = wrap_angle_scalar(x)
         assert got == want and math.copysign(1, got) == math.copysign(1, want), (x, got, want)
