@@ -83,7 +83,7 @@ class FilterConfig:
     "likelihood_field": product over returns of the best-matching map point's Gaussian score;
     "matched_field": the scan's log-likelihood at the matched pose from the scan matcher's field
     (sum over returns of -d^2 / 2 weight_sigma_m^2, d capped at weight_miss_m), divided by
-    weight_gain x N, as GMapping weighs its particles (`gslam.fieldmatch`)."""
+    weight_gain x N, as GMapping weighs its particles (`gslam.scanmatch`)."""
     weight_sigma_m: float = 0.20
     """Distance scale of the likelihood-field, beam-sum and matched-field weights."""
     weight_floor: float = 0.05

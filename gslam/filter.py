@@ -8,25 +8,14 @@ from typing import Protocol
 
 import numpy as np
 
-from .config import FilterConfig
-from .fieldmatch import MatchWorkspace, match_and_weigh
-from .mapupdate import UpdateWorkspace, update_maps
-from .motion import wrap_angle
-from .pointmap import (
-    FlatMaps,
-    PointMap,
-    draw_new_points,
-    interpolate_prior,
-    point_likelihood_ratio,
-    project,
-    prune_and_thin,
-    update_probabilities,
-)
-from .proposal import distinct_maps
-from .resampling import continue_from_parents, effective_sample_size, reweight_and_resample
-from .scan import Scan
-from .trajectory import AncestryTree
-from .weights import log_weight_beam_sum, log_weight_likelihood_field, log_weight_sum
+from gslam import mapupdate
+from gslam.ancestry import AncestryTree
+from gslam.config import FilterConfig
+from gslam.motion import wrap_angle
+from gslam.pointmap import PointMap, distinct_maps
+from gslam.resampling import continue_from_parents, effective_sample_size, reweight_and_resample
+from gslam.scan import Scan
+from gslam.scanmatch import MatchWorkspace, match_and_weigh
 
 Predictor = Callable[[np.ndarray, np.random.Generator | None], np.ndarray]
 """Step 1's motion model: (poses (N,3), rng) -> sampled poses (N,3); rng None: the noise-free motion."""
@@ -65,39 +54,15 @@ class SlamFilter(Protocol):
     def map_points(self, particle: int) -> tuple[np.ndarray, np.ndarray]: ...
 
 
-def map_update_options(cfg: FilterConfig) -> dict[str, float]:
-    """The options of `gslam.mapupdate.update_maps` (steps 2 to 4, compiled) taken from the config."""
-    return {
-        "range_sigma_m": cfg.range_sigma_m,
-        "bearing_sigma_rad": cfg.bearing_sigma_rad,
-        "hit_sigma_m": cfg.hit_sigma_m,
-        "hit_ratio": cfg.hit_ratio,
-        "free_ratio": cfg.free_ratio,
-        "prune_threshold": cfg.prune_threshold,
-        "cell_size_m": cfg.cell_size_m,
-        "prior_p0": cfg.prior_p0,
-        "max_points_per_cell": cfg.max_points_per_cell,
-    }
-
-
 class GSlamFilter:
     """N particles, each a pose, a pose history (shared ancestry tree) and a point map."""
 
     def __init__(self, cfg: FilterConfig, initial_pose: np.ndarray, threads: int | None = None) -> None:
         self.cfg = cfg
         self._workspace = MatchWorkspace(threads or 1)
-        self._update_workspace = UpdateWorkspace(threads or 1, cfg.max_points_per_cell)
-        self.compiled_update = (
-            cfg.map_update == "binary"
-            and cfg.observation_unit == "beam"
-            and cfg.prior_interpolation == "cell_mean"
-            and cfg.free_space_beams == 0
-            and not cfg.prune_relative
-            and cfg.weighting == "matched_field"
-            and cfg.max_points_per_cell >= 1
-        )
-        """Steps 2 to 4 run compiled and local to the scan (`gslam.mapupdate`) for the default reading of
-        the open points; any other reading runs the numpy steps of `gslam.pointmap` over whole maps."""
+        self.map_update = mapupdate.select(cfg, threads or 1)
+        """Steps 2 to 4 (and the weights computed with them): compiled and local to the scan where that
+        implementation supports the settings, else numpy over whole maps (`gslam.mapupdate`)."""
         self.rng = np.random.default_rng(cfg.seed)
         n = cfg.particles
         self.poses = np.tile(np.asarray(initial_pose, dtype=float), (n, 1))
@@ -141,7 +106,7 @@ class GSlamFilter:
     # ------------------------------------------------------------------------------------------
     def step(self, scan: Scan, predict: Predictor | None = None, intensities: np.ndarray | None = None) -> StepResult:
         """One G-SLAM step for scan z_t after the controls since the previous scan."""
-        cfg, n = self.cfg, self.cfg.particles
+        cfg = self.cfg
         if cfg.min_range_m is not None and scan.min_range_m != cfg.min_range_m:
             scan = Scan(scan.t_s, scan.ranges_m, scan.geometry, cfg.min_range_m)
         # 1. Draw s_t^i from the motion model.
@@ -171,12 +136,11 @@ class GSlamFilter:
             )
         layout = self._layout if self._layout is not None else distinct_maps(self.maps)
         matched, matched_log_like = self._match_and_weigh(scan, layout)
-        if self.compiled_update:
-            log_like = matched_log_like / (cfg.weight_gain * n) if len(layout[1]) else np.zeros(n)
-            map_points_total = self._update_maps_compiled(scan, layout)
-        else:
-            log_like, map_points_total = self._update_maps_numpy(scan, matched_log_like)
-            self._layout = None
+        # 2 to 5. New points, the update of eq. 7, pruning; the importance factors.
+        self.maps, self._layout, log_like, map_points_total = self.map_update(
+            self.maps, layout, self.poses, scan, self.rng, matched_log_like
+        )
+        del layout
         # 6. Weights, effective sample size, resampling (RSR).
         self.weights, ess, parents = reweight_and_resample(self.weights, log_like, cfg.resample_threshold, self.rng)
         best = self.best_particle()
@@ -206,68 +170,6 @@ class GSlamFilter:
         self._points_total = sum(len(m) for m in self.maps)  # until the next update
         self.steps += 1
         return result
-
-    def _update_maps_compiled(self, scan: Scan, layout: tuple[np.ndarray, ...]) -> int:
-        """Steps 2 to 4 local to the scan, compiled (`gslam.mapupdate`). Returns the points in all maps."""
-        cfg, n = self.cfg, self.cfg.particles
-        returns = scan.returns
-        noise = self.rng.standard_normal((n, int(returns.sum()), cfg.points_per_observation, 2), dtype=np.float32)
-        geom = scan.geometry
-        xy, p, lo, hi = layout
-        out_xy, out_p, bounds = update_maps(
-            xy,
-            p,
-            lo,
-            hi,
-            self.poses,
-            scan.occlusion_ranges_m,
-            returns,
-            geom.start_angle_rad,
-            geom.angle_increment_rad,
-            geom.max_range_m,
-            noise,
-            workspace=self._update_workspace,
-            **map_update_options(cfg),
-        )
-        self.maps = [PointMap(out_xy[a:b], out_p[a:b]) for a, b in bounds]
-        self._layout = (out_xy, out_p, bounds[:, 0].copy(), bounds[:, 1].copy())
-        self._update_workspace.release(xy, p)  # the maps before this update: written to again when free
-        return int((bounds[:, 1] - bounds[:, 0]).sum())
-
-    def _update_maps_numpy(self, scan: Scan, matched_log_like: np.ndarray) -> tuple[np.ndarray, int]:
-        """Steps 2 to 5 over whole maps with numpy, for every reading of the open points. Returns (the
-        step's log-likelihoods, the points in all maps)."""
-        cfg, n = self.cfg, self.cfg.particles
-        flat = FlatMaps.of(self.maps)
-        # 2. Generate new points around the returns (drawn z_hat, inverse of g, interpolated prior).
-        new_owner, new_xy, new_q, _ = draw_new_points(self.poses, scan, cfg, self.rng)
-        new_prior = interpolate_prior(self.maps, new_owner, new_xy, cfg) if len(new_owner) else np.empty(0)
-        # 3. q of existing points (eq. 6) and the update of eq. 7 over existing and new points.
-        r, j, z, observed, free = project(flat, self.poses, scan, cfg.free_space_beams)
-        q = point_likelihood_ratio(r, z, observed, cfg, free)
-        all_q = np.concatenate([q, new_q])
-        all_prev = np.concatenate([flat.p, new_prior])
-        all_owner = np.concatenate([flat.owner, new_owner])
-        all_observed = np.concatenate([observed, np.ones(len(new_q), dtype=bool)])
-        order = np.argsort(all_owner, kind="stable")
-        all_xy = np.concatenate([flat.xy, new_xy])[order]
-        all_q, all_prev, all_owner, all_observed = all_q[order], all_prev[order], all_owner[order], all_observed[order]
-        # 5. Importance factors (computed from q and p_{t-1}, before the map changes).
-        if cfg.weighting == "sum":
-            log_like = log_weight_sum(all_q, all_prev, all_owner, n)
-        elif cfg.weighting == "beam_sum":
-            log_like = log_weight_beam_sum(flat, r, j, z, observed, scan, n, cfg)
-        elif cfg.weighting == "likelihood_field":
-            log_like = log_weight_likelihood_field(self.maps, self.poses, scan, cfg)
-        else:
-            log_like = matched_log_like / (cfg.weight_gain * n)
-        if flat.p.size == 0:
-            log_like = np.zeros(n)  # first scan: nothing to compare with
-        p_new = update_probabilities(all_prev, all_q, all_owner, all_observed, n, cfg)
-        # 4. Remove meaningless points (and thin dense cells).
-        pruned = prune_and_thin(FlatMaps(all_xy, p_new, all_owner), n, cfg)
-        self.maps = pruned.split(n)
-        return log_like, len(pruned.p)
 
     def _match_and_weigh(self, scan: Scan, layout: tuple[np.ndarray, ...]) -> tuple[int, np.ndarray]:
         """Open point 6: refine every particle's motion-model sample by matching the scan against its own

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .motion import integrate_ackermann
-from .vehicle import AckermannVehicle
+from gslam.motion import integrate_ackermann
+from gslam.vehicle import AckermannVehicle
 
 
 def dead_reckoning(

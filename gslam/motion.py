@@ -7,7 +7,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .vehicle import AckermannVehicle
+from gslam.vehicle import AckermannVehicle
 
 
 def wrap_angle(a: np.ndarray | float) -> np.ndarray | float:

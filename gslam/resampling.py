@@ -6,7 +6,7 @@ from typing import TypeVar
 
 import numpy as np
 
-from .trajectory import AncestryTree
+from gslam.ancestry import AncestryTree
 
 MapT = TypeVar("MapT")
 

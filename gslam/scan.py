@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .motion import wrap_angle
+from gslam.motion import wrap_angle
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .motion import wrap_angle
+from gslam.motion import wrap_angle
 
 
 def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .config import FilterConfig
-from .pointmap import FlatMaps, PointMap, segment_sum
-from .scan import Scan, transform_points
+from gslam.config import FilterConfig
+from gslam.pointmap import FlatMaps, PointMap, segment_sum
+from gslam.scan import Scan, transform_points
 
 
 def log_weight_sum(q: np.ndarray, p_prev: np.ndarray, owner: np.ndarray, n: int) -> np.ndarray:

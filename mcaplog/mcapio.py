@@ -223,7 +223,7 @@ _OP_MESSAGE = 0x05
 def _chunk_messages(f: Any, chunk_index: Any, channel_ids: set[int]) -> list[tuple[int, int, bytes]]:
     """(log time, channel id, data) of the messages of `channel_ids` in one chunk, in log-time order
     (ties in file order). A damaged chunk raises (the library's errors, or ValueError for its records);
-    the pipelines (`pipelines.source.converted`) report any of them as a damaged file."""
+    the pipelines (`pipelines.run.input_log.converted`) report any of them as a damaged file."""
     f.seek(chunk_index.chunk_start_offset + 9)  # past the record's opcode and length
     stream, size = get_chunk_data_stream(Chunk.read(ReadDataStream(f)))  # decompressed by the library
     payload = stream.read(size)

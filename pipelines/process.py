@@ -12,12 +12,12 @@ import numpy as np
 
 from gslam import __version__
 from mcaplog import channels as ch
-
-from .compiled import skip_blas_probe
-from .outputs import McapResultWriter, RerunResultWriter
-from .runner import RunConfig, SlamRunner
-from .source import InputLog
-from .writerproc import WriterProcess, usage
+from pipelines.outputs.mcap_result import McapResultWriter
+from pipelines.outputs.rerun_result import RerunResultWriter
+from pipelines.outputs.writer_process import WriterProcess, usage
+from pipelines.run.input_log import InputLog
+from pipelines.run.runner import RunConfig, SlamRunner
+from pipelines.run.startup import skip_blas_probe
 
 
 @dataclass
@@ -70,7 +70,7 @@ def _write_occupancy(
     mcap_out: McapResultWriter, runner: SlamRunner, log: InputLog, scan_indices: list[int], cfg: RunConfig
 ) -> None:
     """The final trinary occupancy grid on /map/occupancy (scans cast from the final laser poses)."""
-    from .navmap import build_grid, occupancy_probabilities
+    from pipelines.outputs.navigation_map import build_grid, occupancy_probabilities
 
     flt = runner.filter  # laser poses: where the scans were taken
     times, laser = flt.best_trajectory()

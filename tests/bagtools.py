@@ -229,7 +229,7 @@ def bag_from_log(
 
 
 def bag_from_robot(sim, path: Path, kind: str, odometry: str = "topic", t0_s: float = 1000.0) -> Path:
-    """A `gslam.sim.RobotLog` as a robot's bag: its odometry (topic or /tf), its scans, and its mount on
+    """A `pipelines.demo.world.RobotLog` as a robot's bag: its odometry (topic or /tf), its scans, and its mount on
     /tf_static. Odometry comes at each scan's stamp and half-way between scans."""
     t_ns = np.round((t0_s + sim.t_s) * 1e9).astype(np.int64)
     odo = sim.odometry

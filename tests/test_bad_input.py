@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from ingest import IngestError, ingest
 from ingest.textlog import monotone_log_times_ns, parse_numeric_csv
-from pipelines.cli import app
+from pipelines.cli.app import app
 
 
 def write_sydney(d: Path, laser_lines: list[str] | None = None, drs: str | None = None) -> Path:

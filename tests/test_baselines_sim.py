@@ -7,14 +7,14 @@ import pytest
 
 from gslam.config import FilterConfig
 from gslam.initialisation import dead_reckoning
-from gslam.sim import SimConfig, simulate_sydney_log
 from gslam.vehicle import VEHICLE_PRESETS
 from ingest import ingest
-from pipelines.demo import write_sydney_text
-from pipelines.evaluate import read_result
+from pipelines.demo.run import write_sydney_text
+from pipelines.demo.world import SimConfig, simulate_sydney_log
+from pipelines.evaluation.evaluate import read_result
 from pipelines.process import process
-from pipelines.runner import RunConfig, SlamRunner
-from pipelines.source import InputLog
+from pipelines.run.input_log import InputLog
+from pipelines.run.runner import RunConfig, SlamRunner
 
 CAR = VEHICLE_PRESETS["carpark"]
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from pipelines.bench_suites import GMappingRun, SuiteRun, run_gmapping, speed_section
+from pipelines.bench.suites import GMappingRun, SuiteRun, run_gmapping, speed_section
 
 LINE = (
     "mit-csail  n=30  seed=0  scans 430/1988  trans 0.055+-0.059 m  rot 3.39 deg  (1172/1172 rel)  182.2 ms/scan  "

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from gslam.sim import SimConfig, simulate_sydney_log
 from gslam.vehicle import VEHICLE_PRESETS
 from ingest import read_log
-from pipelines.demo import run_demo, write_sydney_text
+from pipelines.demo.run import run_demo, write_sydney_text
+from pipelines.demo.world import SimConfig, simulate_sydney_log
 
 
 def test_simulated_log_is_deterministic_and_sydney_shaped(tmp_path):

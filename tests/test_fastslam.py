@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gslam.fastslam import (
+from gslam.baselines.fastslam import (
     FastSlam,
     FastSlamConfig,
     LandmarkMap,

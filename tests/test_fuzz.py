@@ -194,8 +194,8 @@ def mcap_input_files(seeds: dict[str, Files]) -> st.SearchStrategy[Files]:
 
 
 def read_mcap_input(d: Path) -> None:
-    from pipelines.inspect import mcap_info
-    from pipelines.source import InputLog
+    from pipelines.evaluation.mcap_info import mcap_info
+    from pipelines.run.input_log import InputLog
 
     path = d / "in.mcap"
     try:
@@ -214,7 +214,7 @@ def mcap_result_files(seeds: dict[str, Files]) -> st.SearchStrategy[Files]:
 
 
 def read_mcap_result(d: Path) -> None:
-    from pipelines.evaluate import read_result
+    from pipelines.evaluation.evaluate import read_result
 
     res = read_result(d / "result.mcap")
     assert len(res.trajectory) == len(res.t_s)
@@ -234,7 +234,7 @@ READERS = [
 def seeds(tmp_path_factory) -> dict[str, Files]:
     """Small valid files of each kind, for the strategies to start from and mutate."""
     from pipelines.process import process
-    from pipelines.runner import RunConfig
+    from pipelines.run.runner import RunConfig
 
     d = tmp_path_factory.mktemp("fuzz-seeds")
     ranges = ",".join(["5.0"] * 361)

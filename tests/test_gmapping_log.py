@@ -1,4 +1,4 @@
-"""The GMapping harness's text log written from an input MCAP (pipelines.gmapping_log), as its driver
+"""The GMapping harness's text log written from an input MCAP (pipelines.bench.gmapping_log), as its driver
 reads it: `SCAN t x y theta angle_min angle_increment n r_1 ... r_n`."""
 
 from __future__ import annotations
@@ -7,8 +7,8 @@ import numpy as np
 
 from gslam.motion import integrate_ackermann
 from gslam.vehicle import vehicle_preset
-from pipelines.gmapping_log import write_gmapping_log
-from pipelines.source import ControlEvent, InputLog, ScanEvent
+from pipelines.bench.gmapping_log import write_gmapping_log
+from pipelines.run.input_log import ControlEvent, InputLog, ScanEvent
 
 
 def _parse(path):

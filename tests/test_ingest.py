@@ -11,7 +11,7 @@ from conftest import CARPARK, INTEL, VICTORIA, require
 from ingest import ingest, read_log
 from mcaplog import channels as ch
 from mcaplog.mcapio import McapInput
-from pipelines.inspect import mcap_info
+from pipelines.evaluation.mcap_info import mcap_info
 
 
 def test_carpark_text_counts_and_values(tmp_path):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from conftest import CARPARK, require
 
-from gslam.landmarks import poles_from_geometry, poles_from_intensity
+from gslam.baselines.landmarks import poles_from_geometry, poles_from_intensity
 from gslam.scan import Scan, ScanGeometry, inverse_measure
 from gslam.vehicle import VEHICLE_PRESETS
 from ingest import read_log

@@ -41,5 +41,5 @@ def test_only_the_command_line_reaches_into_ingest():
     users = sorted(
         str(p.relative_to(ROOT)) for p in (ROOT / "pipelines").rglob("*.py") if "ingest" in imported_packages(p)
     )
-    allowed = {"cli.py", "clierrors.py", "demo.py", "sweep.py", "bench.py", "bench_suites.py"}
+    allowed = {"cli/app.py", "cli/errors.py", "demo/run.py", "bench/sweep.py", "bench/carpark.py", "bench/suites.py"}
     assert set(users) <= {f"pipelines/{name}" for name in allowed}, users

@@ -1,4 +1,5 @@
-"""Steps 2 to 4 compiled and local to the scan (`gslam.mapupdate`), on constructed scans and the simulated world."""
+"""Steps 2 to 4 compiled and local to the scan (`gslam.mapupdate.windowed`), on constructed scans and a simulated
+world."""
 
 from __future__ import annotations
 
@@ -8,8 +9,8 @@ import numpy as np
 import pytest
 
 from gslam.config import FilterConfig
-from gslam.filter import GSlamFilter, map_update_options
-from gslam.mapupdate import UpdateWorkspace, update_maps
+from gslam.filter import GSlamFilter
+from gslam.mapupdate.windowed import UpdateWorkspace, WindowedUpdate, kernel_options, update_maps
 from gslam.scan import Scan, ScanGeometry
 
 
@@ -31,7 +32,7 @@ def _update(xy, p, pose, scan, cfg, noise=None, workers=1):
         g.max_range_m,
         noise,
         workspace=UpdateWorkspace(workers, cfg.max_points_per_cell),
-        **map_update_options(cfg),
+        **kernel_options(cfg),
     )
 
 
@@ -75,8 +76,9 @@ def test_new_points_are_drawn_around_returns_and_thinned_per_cell():
 
 def _simulated_run(threads: int, on_step=None) -> GSlamFilter:
     """G-SLAM (N 6, compiled update) over 8 s of the simulated car park; on_step(flt, k) after each scan."""
+    from worlds import carpark_world, simulate_loop
+
     from gslam.motion import integrate_ackermann
-    from gslam.sim import carpark_world, simulate_loop
     from gslam.vehicle import VEHICLE_PRESETS
 
     car = VEHICLE_PRESETS["carpark"]
@@ -100,12 +102,12 @@ def _simulated_run(threads: int, on_step=None) -> GSlamFilter:
         t_prev = t
         if on_step is not None:
             on_step(flt, k)
-    assert flt.compiled_update
+    assert isinstance(flt.map_update, WindowedUpdate)
     return flt
 
 
 def test_filter_results_do_not_depend_on_the_thread_count():
-    """Workers take particles as they become free (gslam.schedule): which worker takes which particle
+    """Workers take particles as they become free (gslam.workqueue): which worker takes which particle
     changes from run to run, the results do not; 3 workers on this machine's 2 threads included."""
     runs = []
     for threads in (1, 2, 3):
@@ -157,7 +159,7 @@ def test_maps_a_caller_holds_do_not_change_under_later_updates():
 )
 def test_q_without_its_far_gaussian_is_the_same_bit_for_bit(hit_ratio, free_ratio):
     """Beyond far_z2 the bump is not computed; q must be exactly what computing it gives."""
-    from gslam.mapupdate import _q, far_z2
+    from gslam.mapupdate.windowed import _q, far_z2
 
     far = far_z2(hit_ratio, free_ratio)
     rng = np.random.default_rng(1)

@@ -9,16 +9,17 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from gslam.ancestry import AncestryTree
 from gslam.config import FilterConfig
 from gslam.filter import GSlamFilter
 from gslam.initialisation import fit_initial_heading
-from gslam.metrics import align_se2, gps_mean_error, gps_rmse_aligned, relations_error, relative_pose
+from gslam.mapupdate.wholemap import point_likelihood_ratio, prune_and_thin, update_probabilities
 from gslam.motion import ackermann_step, apply_odometry, integrate_ackermann, odometry_delta
-from gslam.pointmap import FlatMaps, PointMap, point_likelihood_ratio, prune_and_thin, update_probabilities
+from gslam.pointmap import FlatMaps, PointMap
 from gslam.resampling import effective_sample_size, normalise_log_weights, residual_systematic_resampling
 from gslam.scan import Scan, ScanGeometry, inverse_measure, measure
-from gslam.trajectory import AncestryTree
 from gslam.vehicle import VEHICLE_PRESETS, vehicle_preset
+from pipelines.evaluation.metrics import align_se2, gps_mean_error, gps_rmse_aligned, relations_error, relative_pose
 
 CARPARK = VEHICLE_PRESETS["carpark"]
 
@@ -283,7 +284,7 @@ def test_skipped_scans_are_filled_with_noise_free_motion():
 
 
 def test_pole_map_error_on_constructed_maps():
-    from gslam.metrics import pole_map_error
+    from pipelines.evaluation.metrics import pole_map_error
 
     poles = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0]])
     rng = np.random.default_rng(0)
@@ -299,7 +300,7 @@ def test_pole_map_error_on_constructed_maps():
 
 
 def test_covariance_ellipses():
-    from pipelines.outputs import covariance_ellipses
+    from pipelines.outputs.rerun_result import covariance_ellipses
 
     (e,) = covariance_ellipses(np.array([[1.0, 2.0]]), np.array([[[0.04, 0.0], [0.0, 0.01]]]), sigmas=3.0)
     d = e - [1.0, 2.0]
@@ -308,7 +309,7 @@ def test_covariance_ellipses():
 
 
 def test_paper_tables_cover_every_method_and_n():
-    from pipelines.bench import FULL_GRID, METHODS, PAPER_TABLE3, PAPER_TABLE4
+    from pipelines.bench.carpark import FULL_GRID, METHODS, PAPER_TABLE3, PAPER_TABLE4
 
     assert set(PAPER_TABLE3) == set(FULL_GRID)
     assert set(PAPER_TABLE4) == {(m, n) for m in METHODS for n in (2, 8, 30)}

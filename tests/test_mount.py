@@ -14,7 +14,7 @@ from gslam.motion import apply_odometry, odometry_delta
 from gslam.se2 import compose, inverse
 from ingest.textlog import IngestError
 from ingest.tf import FrameTree, Transform, planar_mount, quaternion_matrix
-from pipelines.mount import LaserMount
+from pipelines.run.mount import LaserMount
 
 pose = st.tuples(st.floats(-50, 50), st.floats(-50, 50), st.floats(-math.pi, math.pi)).map(
     lambda t: np.array(t, dtype=float)

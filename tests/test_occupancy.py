@@ -11,14 +11,23 @@ import pytest
 from bagtools import bag_from_robot
 from PIL import Image
 from typer.testing import CliRunner
+from worlds import corridor_world, simulate_robot_loop
 
-from gslam.occupancy import FREE, OCCUPIED, UNKNOWN, GridSpec, OccupancyGrid, ScanCaster, occupied_cells
-from gslam.sim import World, corridor_world, distance_to_obstacles, simulate_robot_loop
 from mcaplog import channels as ch
 from mcaplog.mcapio import McapInput
-from pipelines.cli import app
-from pipelines.evaluate import read_result
-from pipelines.navmap import pgm_bytes
+from pipelines.cli.app import app
+from pipelines.demo.world import World, distance_to_obstacles
+from pipelines.evaluation.evaluate import read_result
+from pipelines.outputs.navigation_map import pgm_bytes
+from pipelines.outputs.occupancy_grid import (
+    FREE,
+    OCCUPIED,
+    UNKNOWN,
+    GridSpec,
+    OccupancyGrid,
+    ScanCaster,
+    occupied_cells,
+)
 
 MOUNT = (0.3, 0.0, 0.4)  # 0.3 m ahead, turned 23 deg left
 
@@ -114,10 +123,10 @@ def test_mounted_laser_gives_the_base_trajectory(world, mounted, tmp_path):
 
 def test_ignoring_the_mount_smears_the_map(world, mounted, tmp_path, monkeypatch):
     """The negative control: the same mounted bag with its mount dropped from the input."""
-    import pipelines.mount
+    import pipelines.run.mount
 
     tmp, sim, _ = mounted
-    monkeypatch.setattr(pipelines.mount.LaserMount, "from_sensor", classmethod(lambda cls, sensor: None))
+    monkeypatch.setattr(pipelines.run.mount.LaserMount, "from_sensor", classmethod(lambda cls, sensor: None))
     result = CliRunner().invoke(app, ["process", str(tmp / "in.mcap"), str(tmp_path / "o.mcap"), "--no-rrd"])
     assert result.exit_code == 0, result.output
     assert _errors(read_result(tmp_path / "o.mcap").trajectory, sim.truth).mean() > 0.5

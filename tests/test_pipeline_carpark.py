@@ -13,9 +13,9 @@ import pytest
 from typer.testing import CliRunner
 
 from mcaplog import channels as ch
-from pipelines.cli import app
-from pipelines.evaluate import METRIC_KEYS, evaluate_result, read_result
-from pipelines.inspect import mcap_info
+from pipelines.cli.app import app
+from pipelines.evaluation.evaluate import METRIC_KEYS, evaluate_result, read_result
+from pipelines.evaluation.mcap_info import mcap_info
 
 DEAD_RECKONING_ERROR_M = 1.67  # noise-free dead reckoning from the same initial pose (measured)
 
@@ -86,9 +86,9 @@ def test_plot_writes_a_png(carpark_result, tmp_path):
 
 def test_interrupted_run_leaves_valid_outputs(carpark_mcap, tmp_path, monkeypatch):
     """An error mid-run still finishes both outputs with the steps done so far."""
-    from pipelines import outputs
+    from pipelines.outputs import mcap_result as outputs
     from pipelines.process import process
-    from pipelines.runner import RunConfig
+    from pipelines.run.runner import RunConfig
 
     calls = {"n": 0}
     original = outputs.McapResultWriter.step

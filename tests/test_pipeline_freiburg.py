@@ -7,7 +7,7 @@ import json
 
 from typer.testing import CliRunner
 
-from pipelines.cli import app
+from pipelines.cli.app import app
 
 PARTICLES = 30
 """As in the benchmark (docs/BENCHMARKS.md, five seeds); at 16 particles one seed in three breaks a loop."""

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from gslam.config import FilterConfig
-from gslam.fieldmatch import MatchWorkspace, match_and_weigh
-from gslam.pointmap import FlatMaps, PointMap, point_likelihood_ratio, project
-from gslam.proposal import distinct_maps
+from gslam.mapupdate.wholemap import point_likelihood_ratio, project
+from gslam.pointmap import FlatMaps, PointMap, distinct_maps
 from gslam.scan import Scan, ScanGeometry, transform_points
+from gslam.scanmatch import MatchWorkspace, match_and_weigh
 
 
 def _room(rng: np.random.Generator) -> np.ndarray:

@@ -17,7 +17,7 @@ import pytest
 from typer.testing import CliRunner
 
 from ingest import ingest
-from pipelines.cli import app
+from pipelines.cli.app import app
 
 RANGES = ",".join(["5.0"] * 361)
 
@@ -39,7 +39,7 @@ def write_log(d: Path, gps: bool = True, laser: bool = True, beacons: bool = Fal
 def tiny(tmp_path_factory) -> dict[str, Path]:
     """A tiny Sydney log, its input MCAP, a result of it, and a tiny CARMEN log."""
     from pipelines.process import process
-    from pipelines.runner import RunConfig
+    from pipelines.run.runner import RunConfig
 
     d = tmp_path_factory.mktemp("tiny")
     log = write_log(d / "log")
@@ -212,9 +212,9 @@ def test_output_where_nothing_can_be_written_names_the_users_path(tiny):
 
 # ---- 3. accepted silently before: now noted ---------------------------------------------------------
 def test_eval_says_a_result_is_partial_and_withholds_pole_error_without_gps(tmp_path):
+    from pipelines.cli.signals import Stopped
     from pipelines.process import process
-    from pipelines.runner import RunConfig
-    from pipelines.signals import Stopped
+    from pipelines.run.runner import RunConfig
 
     ingest(write_log(tmp_path / "log", gps=False, beacons=True, scans=6), tmp_path / "in.mcap")
     before = fingerprint(tmp_path / "in.mcap")
@@ -239,7 +239,7 @@ def test_eval_says_a_result_is_partial_and_withholds_pole_error_without_gps(tmp_
 # ---- 4. faults: SIGTERM, SIGKILL, stale temporaries ------------------------------------------------
 def _start(args: list[str], env_extra: dict[str, str] | None = None) -> subprocess.Popen:
     env = dict(os.environ, GSLAM_PROGRESS_EVERY_S="0.05", GSLAM_PROGRESS="", **(env_extra or {}))
-    cmd = [sys.executable, "-m", "pipelines.cli", *map(str, args)]
+    cmd = [sys.executable, "-m", "pipelines.cli.app", *map(str, args)]
     return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
@@ -256,7 +256,7 @@ def _wait_for_progress(proc: subprocess.Popen, timeout_s: float = 120) -> str:
 
 
 def test_sigterm_finishes_valid_outputs_marked_interrupted(carpark_mcap, tmp_path):
-    from pipelines.inspect import mcap_info
+    from pipelines.evaluation.mcap_info import mcap_info
 
     before = fingerprint(carpark_mcap)
     out = tmp_path / "r.mcap"
@@ -308,8 +308,8 @@ def test_help_shows_bracketed_words_and_defaults():
 
 
 def test_method_choices_match_the_runner():
-    from pipelines.cli import METHOD_NAMES
-    from pipelines.runner import METHODS
+    from pipelines.cli.app import METHOD_NAMES
+    from pipelines.run.runner import METHODS
 
     assert METHOD_NAMES == METHODS
 
@@ -317,7 +317,7 @@ def test_method_choices_match_the_runner():
 def test_plot_titles_and_legends_inside_the_figure_and_off_the_data(tiny):
     import matplotlib.pyplot as plt
 
-    from pipelines.plot import result_figure
+    from pipelines.evaluation.plot import result_figure
 
     fig = result_figure(tiny["result"], tiny["in"])
     try:
@@ -350,7 +350,7 @@ def test_stale_temporaries_of_dead_processes_go_those_of_live_ones_stay(tmp_path
 
 
 def test_memory_measurement_runs_and_reports_both_peaks(tiny, capsys):
-    from pipelines.memory import main
+    from pipelines.bench.memory import main
 
     assert main([str(tiny["in"]), "--first", "2", "--json", "--no-rrd"]) == 0
     report = json.loads(capsys.readouterr().out)

@@ -17,10 +17,10 @@ from gslam.se2 import compose
 from ingest import ingest, read_log
 from mcaplog import channels as ch
 from mcaplog.mcapio import McapInput
-from pipelines.cli import app
-from pipelines.evaluate import read_result
+from pipelines.cli.app import app
+from pipelines.evaluation.evaluate import read_result
 from pipelines.process import process
-from pipelines.runner import RunConfig
+from pipelines.run.runner import RunConfig
 
 SCANS = 250  # the robot stands still for ~50 scans, then drives ~30 m and turns ~25 rad
 MOUNT = (0.3, -0.05, 0.5)  # 0.3 m ahead, 5 cm right, turned 29 deg left (and 0.25 m up)

@@ -1,4 +1,4 @@
-"""The Rerun recording's writer process (`pipelines.rrdwriter`): what it imports, what it writes, and what
+"""The Rerun recording's writer process (`pipelines.outputs.rerun_process`): what it imports, what it writes, and what
 the filter's process does when it stops or is told to abort."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import pytest
 
 from gslam.scan import ScanGeometry
 from pipelines.errors import OutputError
-from pipelines.outputs import RerunResultWriter
+from pipelines.outputs.rerun_result import RerunResultWriter
 
 ROOT = Path(__file__).resolve().parents[1]
 GEOMETRY = ScanGeometry(181, -np.pi / 2, np.pi / 180, 30.0)
@@ -21,7 +21,7 @@ GEOMETRY = ScanGeometry(181, -np.pi / 2, np.pi / 180, 30.0)
 def test_the_writer_imports_neither_the_filter_nor_pandas():
     """The writer holds rerun's memory, not the filter's; pandas (which pyarrow would pull in) is refused."""
     code = (
-        "import sys, pipelines.rrdwriter as w; sys.meta_path.insert(0, w._NoPandas()); "
+        "import sys, pipelines.outputs.rerun_process as w; sys.meta_path.insert(0, w._NoPandas()); "
         "import rerun, pyarrow as pa; pa.array(['a']); "
         "print(sorted({m.split('.')[0] for m in sys.modules} & {'gslam', 'numba', 'pandas', 'mcap', 'scipy'}))"
     )
@@ -93,7 +93,7 @@ def test_abort_removes_the_temporary(tmp_path):
 
 def test_a_map_snapshot_is_sent_as_a_copy_not_a_view_of_the_filters_buffer(tmp_path):
     """A view waiting in the sender's queue would keep the filter's map buffer referenced, and the map
-    update could not write that buffer again (gslam.mapupdate.UpdateWorkspace)."""
+    update could not write that buffer again (gslam.mapupdate.windowed.UpdateWorkspace)."""
     from types import SimpleNamespace
 
     buffer_xy, buffer_p = np.arange(40.0).reshape(20, 2), np.linspace(0.5, 1.0, 20)

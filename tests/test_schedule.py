@@ -1,4 +1,4 @@
-"""Start-up and scheduling of the compiled kernels (gslam.schedule, pipelines.compiled)."""
+"""Start-up and scheduling of the compiled kernels (gslam.workqueue, pipelines.run.startup)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 
-from gslam.schedule import next_index
+from gslam.workqueue import next_index
 
 
 def test_next_index_hands_out_each_index_once_across_threads():
@@ -35,7 +35,7 @@ def test_the_kernels_run_without_numbas_blas_probe_and_scipy_linalg_still_import
     code = """
 import sys
 import numpy as np
-from pipelines.compiled import skip_blas_probe
+from pipelines.run.startup import skip_blas_probe
 skip_blas_probe()
 from gslam.motion import integrate_ackermann
 from gslam.vehicle import VEHICLE_PRESETS
@@ -77,7 +77,7 @@ cli.run()
 def test_the_pipelines_start_numpy_without_openblas_threads_and_keep_a_users_setting():
     code = """
 import os, sys
-import pipelines.cli  # noqa: F401  (imports numpy)
+import pipelines.cli.app  # noqa: F401  (imports numpy)
 tasks = len(os.listdir("/proc/self/task")) if sys.platform == "linux" else 1
 print(os.environ["OPENBLAS_NUM_THREADS"], tasks)
 """

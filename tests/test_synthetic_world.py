@@ -6,13 +6,14 @@ import math
 
 import numpy as np
 import pytest
+from worlds import carpark_world, simulate_loop
 
 from gslam.config import FilterConfig
 from gslam.filter import GSlamFilter
 from gslam.motion import integrate_ackermann
 from gslam.scan import Scan, ScanGeometry
-from gslam.sim import World, carpark_world, distance_to_obstacles, ray_cast, simulate_loop
 from gslam.vehicle import VEHICLE_PRESETS
+from pipelines.demo.world import World, distance_to_obstacles, ray_cast
 
 CAR = VEHICLE_PRESETS["carpark"]
 

@@ -1,0 +1,415 @@
+"""Scan matching and observation likelihood on each particle's point map (open points 4 and 6), compiled.
+
+GMapping's scan matcher (Grisetti, Stachniss & Burgard 2007; openslam_gmapping `ScanMatcher::optimize`,
+`score`, `likelihoodAndScore`), carried over from its occupancy grid to G-SLAM's point map:
+
+- For each particle, the map points with probability p >= `min_p` that lie in a window around the scan
+  (its end points' box at the particle's motion sample, plus a margin) are rasterised into a fine grid
+  (`cell_m`); each occupied cell keeps the mean of its points, as GMapping's cells keep the mean of
+  their hits. The window is local to the scan, so the work does not grow with the map.
+- The score of a pose is sum_j exp(-d_j^2 / 2 sigma_j^2), d_j the distance from return j's end point to
+  the map among the (2k+1)^2 cells around it (k = `kernel`), counting only cells whose neighbour one
+  cell back along the beam is free (so a wall is not matched from its far side). When the two nearest
+  cell means lie within `line_pair_m` of each other (neighbouring samples of one surface), d_j is the
+  distance across the line through them (point to line, as PL-ICP, Censi 2008); otherwise it is the
+  distance to the nearest mean. A point-to-line distance does not depend on where the return falls
+  between the map's samples; a point-to-point one does, so those returns may be scored with a width
+  that grows with range, sigma_j^2 = sigma_s^2 + (r_j sigma_a)^2 (the map samples a surface at range r
+  every r x the angle between beams); line returns are scored with sigma_s.
+- The pose climbs that score from the motion sample: one step forwards and backwards in x, y and phi,
+  move to the best while it improves, halve the steps when it does not, `levels` times.
+- The log-likelihood of the scan at the matched pose is sum_j -d_j^2 / 2 sigma_l^2, with d_j = `miss_m`
+  for a return that finds no occupied cell near it (GMapping's `nullLikelihood`).
+
+Every particle is independent: the particles are spread over `threads` workers (numba prange), each
+with its own raster, so the result does not depend on the number of threads.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from gslam.workqueue import next_index
+
+_EMPTY = -1
+
+
+@njit(cache=True, inline="always")
+def _nearer(ex, ey, k, mean_xy, best, second, k1, k2):
+    """The two nearest cell means so far (squared distances best <= second, cells k1, k2; -1: none yet),
+    updated with cell k's mean."""
+    dx = ex - mean_xy[k, 0]
+    dy = ey - mean_xy[k, 1]
+    d2 = dx * dx + dy * dy
+    if best < 0.0 or d2 < best:
+        return d2, best, k, k1
+    if second < 0.0 or d2 < second:
+        return best, d2, k1, k
+    return best, second, k1, k2
+
+
+@njit(cache=True, inline="always")
+def _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2):
+    """(squared distance from (ex, ey) to the map, True when it is taken across the line through the two
+    nearest usable cell means) or (-1, False) when no usable cell is found."""
+    cx = int(math.floor((ex - x0) / cell_m))
+    cy = int(math.floor((ey - y0) / cell_m))
+    fx = -int(math.floor(ux * 1.41421356 + 0.5))  # one cell back towards the sensor
+    fy = -int(math.floor(uy * 1.41421356 + 0.5))
+    best = -1.0
+    second = -1.0
+    k1 = 0
+    k2 = 0
+    if kernel < cx < nx - kernel - 1 and kernel < cy < ny - kernel - 1:
+        # every cell searched and every cell in front of one (one step further) lies in the raster: the
+        # same cells in the same order as below, without the bounds tests
+        for ix in range(cx - kernel, cx + kernel + 1):
+            row, front = ix * ny, (ix + fx) * ny + fy
+            for iy in range(cy - kernel, cy + kernel + 1):
+                k = grid[row + iy]
+                if k == _EMPTY or grid[front + iy] != _EMPTY:
+                    continue  # empty, or the cell in front is occupied too: not a surface seen from here
+                best, second, k1, k2 = _nearer(ex, ey, k, mean_xy, best, second, k1, k2)
+    else:
+        for ix in range(cx - kernel, cx + kernel + 1):
+            if ix < 0 or ix >= nx:
+                continue
+            for iy in range(cy - kernel, cy + kernel + 1):
+                if iy < 0 or iy >= ny:
+                    continue
+                k = grid[ix * ny + iy]
+                if k == _EMPTY:
+                    continue
+                jx, jy = ix + fx, iy + fy
+                if 0 <= jx < nx and 0 <= jy < ny and grid[jx * ny + jy] != _EMPTY:
+                    continue  # the cell in front is occupied too: not a surface seen from this side
+                best, second, k1, k2 = _nearer(ex, ey, k, mean_xy, best, second, k1, k2)
+    if pair_d2 > 0.0 and second >= 0.0:
+        # point to line: the two nearest means, when close enough to be neighbouring samples of one
+        # surface, define its local direction; the distance is taken across it (PL-ICP, Censi 2008)
+        tx = mean_xy[k2, 0] - mean_xy[k1, 0]
+        ty = mean_xy[k2, 1] - mean_xy[k1, 1]
+        t2 = tx * tx + ty * ty
+        if 0.0 < t2 <= pair_d2:
+            cross = (ex - mean_xy[k1, 0]) * ty - (ey - mean_xy[k1, 1]) * tx
+            return cross * cross / t2, True
+    return best, False
+
+
+@njit(cache=True, inline="always")
+def _return_d2(pose, c, s, ends, dirs, j, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2):
+    """_best_d2 of return j (end point and beam direction in the sensor frame) seen from `pose`
+    (c, s: cos and sin of its heading)."""
+    lx, ly = ends[j, 0], ends[j, 1]
+    ex = pose[0] + c * lx - s * ly
+    ey = pose[1] + s * lx + c * ly
+    ux = c * dirs[j, 0] - s * dirs[j, 1]
+    uy = s * dirs[j, 0] + c * dirs[j, 1]
+    return _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2)
+
+
+@njit(cache=True)
+def _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, inv_2s2, pair_d2, inv_line, beat):
+    """Sum over returns j of exp(-d_j^2 w_j), w_j = inv_line for a point-to-line distance, else inv_2s2[j]
+    (1 / 2 sigma_j^2 of return j).
+
+    A candidate of the climb only matters if it scores above `beat`: every term is at most 1, so once the
+    sum so far plus one per return left stays below `beat` (by 1e-9, far above the sum's rounding), the
+    rest is not computed and -1 is returned. `beat` -inf computes the whole sum."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    total = 0.0
+    count = ends.shape[0]
+    bound = beat - 1e-9
+    for j in range(count):
+        if total + (count - j) < bound:
+            return -1.0  # cannot reach `beat`
+        d2, line = _return_d2(pose, c, s, ends, dirs, j, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2)
+        if d2 >= 0.0:
+            total += math.exp(-d2 * (inv_line if line else inv_2s2[j]))
+    return total
+
+
+@njit(cache=True)
+def _log_likelihood(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, inv_2s2, miss_d2, pair_d2):
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    total = 0.0
+    hits = 0
+    for j in range(ends.shape[0]):
+        d2, _ = _return_d2(pose, c, s, ends, dirs, j, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2)
+        if d2 >= 0.0:
+            hits += 1
+            total -= min(d2, miss_d2) * inv_2s2
+        else:
+            total -= miss_d2 * inv_2s2
+    return total, hits
+
+
+@njit(cache=True)
+def _match_one(
+    i,
+    map_xy,
+    map_p,
+    lo,
+    hi,
+    pose0,
+    ends,
+    dirs,
+    score_inv,
+    window,
+    cell_m,
+    kernel,
+    min_p,
+    match,
+    grid,
+    sums,
+    touched,
+    out,
+):
+    """Rasterise particle i's window of its map, climb the score, weigh the scan; reset the raster."""
+    x0, y0 = window[0], window[1]
+    nx, ny = int(window[2]), int(window[3])
+    used = 0
+    for k in range(lo, hi):
+        if map_p[k] < min_p:
+            continue
+        cx = int(math.floor((map_xy[k, 0] - x0) / cell_m))
+        cy = int(math.floor((map_xy[k, 1] - y0) / cell_m))
+        if cx < 0 or cx >= nx or cy < 0 or cy >= ny:
+            continue
+        g = cx * ny + cy
+        slot = grid[g]
+        if slot == _EMPTY:
+            slot = used
+            grid[g] = slot
+            touched[slot] = g
+            sums[slot, 0] = 0.0
+            sums[slot, 1] = 0.0
+            sums[slot, 2] = 0.0
+            used += 1
+        sums[slot, 0] += map_xy[k, 0]
+        sums[slot, 1] += map_xy[k, 1]
+        sums[slot, 2] += 1.0
+    for slot in range(used):
+        sums[slot, 0] /= sums[slot, 2]
+        sums[slot, 1] /= sums[slot, 2]
+    mean_xy = sums
+    step_xy, step_phi, levels, max_iter, like_inv, miss_d2 = (
+        match[0],
+        match[1],
+        int(match[2]),
+        int(match[3]),
+        match[5],
+        match[6],
+    )
+    inv_line = match[4]  # 1 / 2 sigma_s^2: the width of a point-to-line distance
+    pair_d2 = match[7]
+    pose = pose0.copy()
+    current = (
+        _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line, -np.inf)
+        if used
+        else 0.0
+    )
+    if used:
+        best = -1.0
+        refinement = 0
+        cand = np.empty(3)
+        back = -1  # the move back to the pose just left (`left`): it scored below the current pose
+        left = pose.copy()
+        for _ in range(max_iter):
+            if best >= current:
+                refinement += 1
+                step_xy *= 0.5
+                step_phi *= 0.5
+                back = -1
+            best = current
+            best_local = pose.copy()
+            chosen = -1
+            for move in range(6):
+                cand[0], cand[1], cand[2] = pose[0], pose[1], pose[2]
+                if move == 0:
+                    cand[0] += step_xy
+                elif move == 1:
+                    cand[0] -= step_xy
+                elif move == 2:
+                    cand[1] += step_xy
+                elif move == 3:
+                    cand[1] -= step_xy
+                elif move == 4:
+                    cand[2] += step_phi
+                else:
+                    cand[2] -= step_phi
+                if move == back and cand[0] == left[0] and cand[1] == left[1] and cand[2] == left[2]:
+                    continue  # its score is known, below the current one (only when the move back lands
+                    # exactly on it: the pose lattice meets the raster's cell edges, so a rounding off by one
+                    # unit in the last place can change a score)
+                s = _score(
+                    cand,
+                    ends,
+                    dirs,
+                    x0,
+                    y0,
+                    nx,
+                    ny,
+                    cell_m,
+                    kernel,
+                    grid,
+                    mean_xy,
+                    score_inv,
+                    pair_d2,
+                    inv_line,
+                    current,
+                )
+                if s > current:
+                    current = s
+                    best_local[:] = cand
+                    chosen = move
+            left[:] = pose
+            pose[:] = best_local
+            back = chosen ^ 1 if chosen >= 0 else -1  # moves come in pairs: 0/1 x, 2/3 y, 4/5 phi
+            if not (current > best or refinement < levels):
+                break
+    like, hits = _log_likelihood(
+        pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, like_inv, miss_d2, pair_d2
+    )
+    for slot in range(used):
+        grid[touched[slot]] = _EMPTY
+    out[i, 0], out[i, 1], out[i, 2] = pose[0], pose[1], pose[2]
+    out[i, 3] = current
+    out[i, 4] = like
+    out[i, 5] = hits
+
+
+@njit(cache=True, parallel=True, nogil=True)
+def _match_all(
+    map_xy, map_p, lo, hi, poses, ends, dirs, score_inv, windows, cell_m, kernel, min_p, match, grids, sums, touched
+):
+    n = poses.shape[0]
+    workers = grids.shape[0]
+    out = np.empty((n, 6))
+    counter = np.zeros(1, dtype=np.int64)
+    for w in prange(workers):
+        while True:
+            i = next_index(counter)  # the next particle not taken (gslam.workqueue)
+            if i >= n:
+                break
+            _match_one(
+                i,
+                map_xy,
+                map_p,
+                lo[i],
+                hi[i],
+                poses[i],
+                ends,
+                dirs,
+                score_inv,
+                windows[i],
+                cell_m,
+                kernel,
+                min_p,
+                match,
+                grids[w],
+                sums[w],
+                touched[w],
+                out,
+            )
+    return out
+
+
+class MatchWorkspace:
+    """Rasters reused between calls (one per worker), grown when a larger window or map comes."""
+
+    def __init__(self, workers: int) -> None:
+        self.workers = max(1, int(workers))
+        self.grids = np.full((self.workers, 0), _EMPTY, dtype=np.int32)
+        self.sums = np.empty((self.workers, 0, 3))
+        self.touched = np.empty((self.workers, 0), dtype=np.int64)
+
+    def reserve(self, cells: int, points: int) -> None:
+        if cells > self.grids.shape[1]:
+            self.grids = np.full((self.workers, int(cells * 1.25) + 1), _EMPTY, dtype=np.int32)
+        if points > self.sums.shape[1]:
+            size = int(points * 1.5) + 1
+            self.sums = np.empty((self.workers, size, 3))
+            self.touched = np.empty((self.workers, size), dtype=np.int64)
+
+
+def match_and_weigh(
+    map_xy: np.ndarray,
+    map_p: np.ndarray,
+    map_lo: np.ndarray,
+    map_hi: np.ndarray,
+    poses: np.ndarray,
+    ends_sensor: np.ndarray,
+    *,
+    cell_m: float,
+    kernel: int,
+    min_p: float,
+    margin_m: float,
+    step_xy_m: float,
+    step_phi_rad: float,
+    levels: int,
+    max_iterations: int,
+    score_sigma_m: float,
+    score_sigma_rad: float,
+    like_sigma_m: float,
+    miss_m: float,
+    line_pair_m: float,
+    workspace: MatchWorkspace,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Match the scan end points `ends_sensor` (K, 2) against each particle's map and weigh it there.
+
+    Particle i's map is map_xy[map_lo[i]:map_hi[i]] with probabilities map_p[...]; `line_pair_m` 0 scores
+    every return point to point. Returns (matched
+    poses (N, 3), score at the matched pose (N,), log-likelihood there (N,), returns that found an
+    occupied cell near their end point (N,)).
+    """
+    n = len(poses)
+    poses = np.ascontiguousarray(poses, dtype=float)
+    ends = np.ascontiguousarray(ends_sensor, dtype=float)
+    rng = np.hypot(ends[:, 0], ends[:, 1])
+    if len(ends) == 0:
+        return poses.copy(), np.zeros(n), np.zeros(n), np.zeros(n, dtype=np.int64)
+    c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+    wx = poses[:, 0, None] + c * ends[:, 0] - s * ends[:, 1]
+    wy = poses[:, 1, None] + s * ends[:, 0] + c * ends[:, 1]
+    x0 = np.minimum(wx.min(axis=1), poses[:, 0]) - margin_m
+    y0 = np.minimum(wy.min(axis=1), poses[:, 1]) - margin_m
+    nx = np.ceil((np.maximum(wx.max(axis=1), poses[:, 0]) + margin_m - x0) / cell_m) + 1
+    ny = np.ceil((np.maximum(wy.max(axis=1), poses[:, 1]) + margin_m - y0) / cell_m) + 1
+    windows = np.column_stack([x0, y0, nx, ny])
+    sizes = (map_hi - map_lo) if n else np.zeros(0, dtype=np.int64)
+    workspace.reserve(int((nx * ny).max()), int(sizes.max()) if n else 0)
+    match = np.array(
+        [
+            step_xy_m,
+            step_phi_rad,
+            levels,
+            max_iterations,
+            0.5 / score_sigma_m**2,
+            0.5 / like_sigma_m**2,
+            miss_m**2,
+            line_pair_m**2,
+        ]
+    )
+    out = _match_all(
+        np.ascontiguousarray(map_xy, dtype=float),
+        np.ascontiguousarray(map_p, dtype=float),
+        np.asarray(map_lo, dtype=np.int64),
+        np.asarray(map_hi, dtype=np.int64),
+        poses,
+        ends,
+        ends / np.maximum(rng, 1e-12)[:, None],
+        0.5 / (score_sigma_m**2 + (rng * score_sigma_rad) ** 2),
+        windows,
+        float(cell_m),
+        int(kernel),
+        float(min_p),
+        match,
+        workspace.grids,
+        workspace.sums,
+        workspace.touched,
+    )
+    return out[:, :3].copy(), out[:, 3].copy(), out[:, 4].copy(), out[:, 5].astype(np.int64)

@@ -1,0 +1,2 @@
+"""Reading results: the metrics (`metrics`, `evaluate`: `gslam eval`), the figure (`plot`: `gslam plot`)
+and what an MCAP file holds (`mcap_info`: `gslam info`)."""

@@ -1,0 +1,214 @@
+"""`gslam eval`: the metrics of docs (ALGORITHM.md "Metrics") for a result MCAP."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mcaplog import channels as ch
+from mcaplog.mcapio import McapInput, Message
+from pipelines.errors import InputError
+from pipelines.evaluation.metrics import gps_mean_error, gps_rmse_aligned, pole_map_error, relations_error
+from pipelines.run.input_log import converted
+
+METRIC_KEYS = (
+    "gps_mean_error_m",
+    "gps_mean_error_online_m",
+    "gps_rmse_aligned_m",
+    "pole_map_error_m",
+    "poles_within_1m",
+    "relations_trans_m",
+    "relations_trans_std_m",
+    "relations_rot_deg",
+    "ms_per_update_mean",
+    "ms_per_step_median",
+    "real_time_factor",
+    "final_map_points",
+    "particles",
+    "points_per_observation",
+)
+
+
+@dataclass
+class ResultData:
+    """What a result MCAP holds, as arrays."""
+
+    metadata: dict[str, Any]
+    t_s: np.ndarray  # log time of each step
+    stamp_s: np.ndarray  # sensor time stamp of each step
+    online: np.ndarray  # (T, 3) best pose at each step
+    trajectory: np.ndarray  # (T, 3) final best trajectory
+    map_xy: np.ndarray
+    map_p: np.ndarray
+    step_ms: np.ndarray
+
+
+def read_result(path: Path) -> ResultData:
+    src = McapInput(path)
+    try:
+        meta = src.metadata()
+    except Exception as e:
+        raise InputError(f"{path}: not a readable MCAP file ({type(e).__name__}: {e})") from None
+    if "result" not in meta or "config" not in meta:
+        raise InputError(f"{path}: no 'result'/'config' metadata; is this a result of `gslam process`?")
+    t, stamp, online, step_ms = [], [], [], []
+    trajectory = None
+    map_xy, map_p = np.empty((0, 2)), np.empty(0)
+
+    def read(msg: Message) -> None:
+        nonlocal trajectory, map_xy, map_p
+        if msg.topic == ch.SLAM_POSE:
+            pose = [msg.value.pose.position.x, msg.value.pose.position.y, ch.yaw_of(msg.value.pose)]
+            stamp.append(ch.t_of(msg.value.timestamp))
+            t.append(msg.t_s)
+            online.append(pose)
+        elif msg.topic == ch.SLAM_STATS:
+            step_ms.append(float(msg.value["step_ms"]))
+        elif msg.topic == ch.SLAM_TRAJECTORY:
+            trajectory = ch.poses_of(msg.value)
+        else:
+            map_xy, map_p = ch.cloud_arrays(msg.value)
+
+    for _ in converted(src, [ch.SLAM_POSE, ch.SLAM_TRAJECTORY, ch.SLAM_MAP_FINAL, ch.SLAM_STATS], read):
+        pass
+    if trajectory is None or len(trajectory) != len(t):
+        raise InputError(f"{path}: no final trajectory matching the {len(t)} steps")
+    return ResultData(
+        meta,
+        np.asarray(t),
+        np.asarray(stamp),
+        np.asarray(online).reshape(-1, 3),
+        trajectory,
+        map_xy,
+        map_p,
+        np.asarray(step_ms),
+    )
+
+
+def read_update_times(path: Path) -> list[float]:
+    """The filter's time (ms) of every step of a result that updated the maps, in log order."""
+    return [
+        float(msg.value["step_ms"])
+        for msg in McapInput(path).messages([ch.SLAM_STATS])
+        if msg.value.get("updated", True)
+    ]
+
+
+def reference_truth(ref: McapInput) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+    """What an input MCAP knows of the truth: GPS (K, 3: t, x, y), poles (P, 2), relations (R, 5); None
+    where it has none."""
+    gps: list[list[float]] = []
+    found: dict[str, np.ndarray] = {}
+
+    def read(msg: Message) -> None:
+        v = msg.value
+        if msg.topic == ch.GPS:
+            gps.append([msg.t_s, v.pose.position.x, v.pose.position.y])
+        elif msg.topic == ch.LANDMARKS_TRUTH:
+            found["poles"] = np.column_stack([v["x_m"], v["y_m"]]).astype(float)
+        else:
+            cols = [v["t1_s"], v["t2_s"], v["dx_m"], v["dy_m"], v["dyaw_rad"]]
+            found["relations"] = np.column_stack(cols).astype(float)
+
+    for _ in converted(ref, [ch.GPS, ch.LANDMARKS_TRUTH, ch.RELATIONS_TRUTH], read):
+        pass
+    return (np.asarray(gps) if gps else None), found.get("poles"), found.get("relations")
+
+
+def _clean(v: Any) -> Any:
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
+def _check_reference(reference: Path) -> McapInput:
+    """The reference must be an input MCAP (from `gslam ingest`), not a result or another file."""
+    ref = McapInput(reference)
+    try:
+        meta = ref.metadata()
+    except Exception as e:  # the mcap library raises several types for a damaged file
+        raise InputError(f"{reference}: not a readable MCAP file ({type(e).__name__}: {e})") from None
+    if "result" in meta:
+        raise InputError(
+            f"--reference {reference} is a result of `gslam process`; give the input MCAP the run read "
+            f"(from `gslam ingest`)"
+        )
+    if "dataset" not in meta:
+        raise InputError(f"--reference {reference}: no 'dataset' metadata; is it an input MCAP from `gslam ingest`?")
+    return ref
+
+
+def recorded_input(result: Path) -> Path | None:
+    """The input MCAP a result names in its metadata (None when it names none or cannot be read)."""
+    try:
+        path = McapInput(result).metadata().get("input", {}).get("path")
+    except Exception:  # an unreadable result is reported by the command that reads it
+        return None
+    return Path(path) if isinstance(path, str) and path else None
+
+
+def partial_note(meta: dict[str, Any]) -> str | None:
+    """A sentence saying the result is partial (interrupted, or cut by max_scans), else None."""
+    r = meta.get("result", {})
+    steps, total = r.get("steps"), r.get("scans_in_log")
+    of = f" of {total}" if total else ""
+    if r.get("interrupted"):
+        why = r.get("error") or "interrupted"
+        return f"partial result: the run was interrupted ({why}) after {steps}{of} scans; metrics cover those steps"
+    if r.get("max_scans") and total and steps is not None and steps < total:
+        return f"partial result: the run stopped at --max-scans after {steps}{of} scans"
+    return None
+
+
+def evaluate_result(result: Path, reference: Path | None = None) -> dict[str, Any]:
+    """All metrics, None where the data does not allow one, with `interrupted`, `steps` and `notes`
+    (what the figures mean for this run: partial, no GPS). The reference (input MCAP) is found from the
+    result's metadata when not given."""
+    res = read_result(result)
+    meta = res.metadata
+    if reference is None:
+        ref_path = meta.get("input", {}).get("path")
+        if not ref_path or not Path(ref_path).exists():
+            raise InputError(f"{result}: its input {ref_path!r} is not there; pass --reference INPUT.mcap")
+        reference = Path(ref_path)
+    ref = _check_reference(reference)
+    notes: list[str] = []
+    partial = partial_note(meta)
+    if partial:
+        notes.append(partial)
+    gps, poles, relations = reference_truth(ref)
+    out: dict[str, Any] = dict.fromkeys(METRIC_KEYS)
+    if gps is not None and len(res.t_s):
+        g = gps
+        out["gps_mean_error_m"] = gps_mean_error(res.t_s, res.trajectory, g)
+        out["gps_mean_error_online_m"] = gps_mean_error(res.t_s, res.online, g)
+        out["gps_rmse_aligned_m"] = gps_rmse_aligned(res.t_s, res.trajectory, g)
+    from_gps = meta.get("initialisation", {}).get("from_gps", gps is not None)
+    if poles is not None and len(res.map_p) and not from_gps:
+        notes.append(
+            "pole map error not computed: the run did not start from GPS, so its map is not in the frame of "
+            "the surveyed poles"
+        )
+    elif poles is not None and len(res.map_p):
+        err, n = pole_map_error(res.map_xy, res.map_p, poles)
+        out["pole_map_error_m"] = err
+        out["poles_within_1m"] = n
+    if gps is None and relations is None and poles is None:
+        notes.append("no ground truth in the reference (GPS, poles or relations): only speed and map size")
+    if relations is not None and len(res.t_s):
+        rel = relations_error(res.stamp_s, res.trajectory, relations)
+        for k in ("relations_trans_m", "relations_trans_std_m", "relations_rot_deg"):
+            out[k] = rel[k]
+    r = meta["result"]
+    out["ms_per_update_mean"] = r.get("ms_per_update_mean")
+    out["ms_per_step_median"] = r.get("ms_per_step_filter_median")
+    out["real_time_factor"] = r.get("real_time_factor")
+    out["final_map_points"] = r.get("final_map_points")
+    out["particles"] = meta["config"]["filter"]["particles"]
+    out["points_per_observation"] = meta["config"]["filter"]["points_per_observation"]
+    cleaned = {k: _clean(v) for k, v in out.items()}
+    return {"interrupted": bool(r.get("interrupted")), "steps": r.get("steps"), **cleaned, "notes": notes}

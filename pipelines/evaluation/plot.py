@@ -1,0 +1,91 @@
+"""`gslam plot`: the paper's figure for a run: the map's probability, the path, GPS and poles; and the
+position error against time."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from mcaplog.mcapio import McapInput
+from mcaplog.tempfiles import temporary_for
+from pipelines.evaluation.evaluate import read_result, reference_truth
+from pipelines.evaluation.metrics import interpolate_positions
+
+
+def _legend_below(ax, ncols: int) -> None:
+    """The axes' legend under its x label, outside the data."""
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), ncols=ncols, fontsize=9, frameon=False, markerscale=2)
+
+
+def plot_result(result: Path, out: Path, reference: Path | None = None) -> Path:
+    """Draw the result's figure and write it to `out` (PNG, atomically)."""
+    import matplotlib.pyplot as plt
+
+    fig = result_figure(result, reference)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = temporary_for(out)
+    try:
+        fig.savefig(tmp, dpi=110, format="png")
+        os.replace(tmp, out)
+    finally:
+        plt.close(fig)
+        tmp.unlink(missing_ok=True)
+    return out
+
+
+def result_figure(result: Path, reference: Path | None = None):
+    """The figure of `plot_result` (a matplotlib Figure; the caller closes it)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    res = read_result(result)
+    ref_path = reference or Path(res.metadata.get("input", {}).get("path", ""))
+    gps = poles = None
+    if ref_path and Path(ref_path).exists():
+        gps, poles, _ = reference_truth(McapInput(ref_path))
+    # Constrained layout keeps titles, labels, the colour bar and the legends (below the axes, off the
+    # data) inside the figure.
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(14, 7.5), gridspec_kw={"width_ratios": [1.4, 1]}, layout="constrained")
+    order = np.argsort(res.map_p)
+    sc = ax.scatter(
+        res.map_xy[order, 0],
+        res.map_xy[order, 1],
+        c=res.map_p[order] / max(res.map_p.max(), 1e-300),
+        s=3,
+        cmap="jet",
+        label=f"map ({len(res.map_p)} points)",
+    )
+    fig.colorbar(sc, ax=ax, label="p / max p", shrink=0.8)
+    ax.plot(res.trajectory[:, 0], res.trajectory[:, 1], color="gold", lw=1.5, label="G-SLAM path")
+    if gps is not None:
+        ax.plot(gps[:, 1], gps[:, 2], color="green", lw=0.8, ls="--", label="GPS")
+    if poles is not None:
+        ax.scatter(poles[:, 0], poles[:, 1], marker="x", c="k", s=40, label="surveyed poles")
+    ax.set_aspect("equal")
+    ax.set_xlabel("east [m]")
+    ax.set_ylabel("north [m]")
+    cfg = res.metadata["config"]["filter"]
+    ax.set_title(f"{res.metadata['input'].get('dataset', '')}: N {cfg['particles']}, M {cfg['points_per_observation']}")
+    _legend_below(ax, ncols=4)
+    if gps is not None:
+        t0 = res.t_s[0]
+        for traj, name in ((res.trajectory, "final best path"), (res.online, "online estimate")):
+            inside, pos = interpolate_positions(res.t_s, traj, gps[:, 0])
+            err = np.hypot(*(pos - gps[inside, 1:3]).T)
+            ax2.plot(gps[inside, 0] - t0, err, label=f"{name} (mean {err.mean():.2f} m)")
+        ax2.set_xlabel("time [s]")
+        ax2.set_ylabel("distance to GPS [m]")
+        ax2.set_title("position error against GPS")
+        _legend_below(ax2, ncols=2)
+        ax2.grid(alpha=0.3)
+    else:
+        ax2.plot(res.t_s - res.t_s[0], res.step_ms)
+        ax2.set_xlabel("time [s]")
+        ax2.set_ylabel("step time [ms]")
+        ax2.set_title("filter time per step (no GPS to compare with)")
+    return fig

@@ -1,0 +1,88 @@
+"""The result MCAP: the /slam/* channels of docs/CHANNELS.md and the run's metadata, written to a
+temporary file and moved into place on `finish()`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from gslam.filter import SlamFilter
+from mcaplog import channels as ch
+from mcaplog.mcapio import AtomicMcapWriter, to_ns
+from pipelines.run.runner import Step
+
+
+class McapResultWriter:
+    """Writes /slam/* channels (docs/CHANNELS.md) and the run's metadata."""
+
+    def __init__(self, path: Path, metadata: dict[str, dict[str, Any]], snapshot_every: int) -> None:
+        self.writer = AtomicMcapWriter(path)
+        for name, data in metadata.items():
+            self.writer.add_metadata(name, data)
+        self.snapshot_every = snapshot_every
+        self.last_ns = 0
+        self.steps_written = 0
+
+    def step(self, st: Step, flt: SlamFilter) -> None:
+        r = st.result
+        ns = to_ns(st.event.t_s)
+        self.last_ns = ns
+        w = self.writer
+        w.write_proto(ch.SLAM_POSE, ch.pose_in_frame(st.event.stamp_s, *r.best_pose, ch.MAP_FRAME), ns)
+        self.steps_written += 1  # the trajectory in finish() covers exactly the poses written
+        particles = ch.poses_in_frame_bytes(st.event.stamp_s, r.poses, ch.MAP_FRAME)
+        w.write_proto_bytes(ch.SLAM_PARTICLES, ch.PosesInFrame, particles, ns)
+        w.write_json(
+            ch.SLAM_STATS,
+            "gslam.StepStats",
+            ch.STATS_SCHEMA,
+            {
+                "scan_index": st.event.index,
+                "t_s": st.event.t_s,
+                "effective_sample_size": r.effective_sample_size,
+                "resampled": r.resampled,
+                "updated": r.updated,
+                "map_points": r.map_points,
+                "map_points_total": r.map_points_total,
+                "step_ms": st.step_ms,
+                "best_particle": r.best,
+                "matched": r.matched,
+            },
+            ns,
+        )
+        if self.snapshot_every and st.event.index % self.snapshot_every == 0:
+            xy, p = flt.map_points(r.best)
+            w.write_proto(ch.SLAM_MAP, ch.point_cloud(st.event.stamp_s, xy, p), ns)
+
+    def finish(self, flt: SlamFilter, result_meta: dict[str, Any]) -> Path:
+        best = flt.best_particle()
+        times, traj = flt.best_trajectory()
+        # An interruption can fall between the filter's step and its writing: publish the steps written.
+        times, traj = times[: self.steps_written], traj[: self.steps_written]
+        ns = self.last_ns
+        t_last = float(times[-1]) if len(times) else 0.0
+        xy, p = flt.map_points(best)
+        self.writer.write_proto(ch.SLAM_MAP_FINAL, ch.point_cloud(t_last, xy, p), ns)
+        trajectory = ch.poses_in_frame_bytes(t_last, traj, ch.MAP_FRAME)
+        self.writer.write_proto_bytes(ch.SLAM_TRAJECTORY, ch.PosesInFrame, trajectory, ns)
+        if hasattr(flt, "landmarks"):
+            mean, cov = flt.landmarks(best)
+            self.writer.write_json(
+                ch.SLAM_LANDMARKS,
+                "gslam.LandmarkMap",
+                ch.SLAM_LANDMARKS_SCHEMA,
+                {
+                    "x_m": mean[:, 0].tolist(),
+                    "y_m": mean[:, 1].tolist(),
+                    "cov": cov.reshape(-1, 4).tolist(),
+                },
+                ns,
+            )
+        if hasattr(flt, "occupancy"):
+            prob, origin, cell = flt.occupancy(best)
+            self.writer.write_proto(ch.SLAM_GRID, ch.occupancy_grid(t_last, prob, origin, cell), ns)
+        self.writer.add_metadata("result", result_meta)
+        return self.writer.finish()
+
+    def abort(self) -> None:
+        self.writer.abort()

@@ -1,0 +1,81 @@
+"""Check a command's output paths before any work: none may be (or lie inside) one of its inputs, be
+a directory, repeat another output, or sit where nothing can be written. Each refusal is one line
+naming the option and the path (and the input it would destroy)."""
+
+from __future__ import annotations
+
+import errno
+import os
+from pathlib import Path
+
+from mcaplog.tempfiles import temporary_for
+from pipelines.errors import OutputError
+
+Labelled = dict[str, Path | None]
+
+
+def _same(a: Path, b: Path) -> bool:
+    """Whether two paths name the same file: equal once resolved (symlinks followed), or hard links."""
+    if a.resolve() == b.resolve():
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _inside(path: Path, directory: Path) -> bool:
+    try:
+        path.resolve().relative_to(directory.resolve())
+    except ValueError:
+        return False
+    return True
+
+
+def _writable_dir(label: str, path: Path) -> None:
+    """Refuse `path` when its directory cannot hold a new file (read-only, no permission, not a dir)."""
+    parent = path.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise OutputError(f"{label} {path}: cannot create it, {parent} is not a directory")
+    probe = temporary_for(path) if parent == path.parent else parent / f".gslam-probe.{os.getpid()}.tmp"
+    try:
+        fd = os.open(probe, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+    except FileExistsError:
+        return
+    except OSError as e:
+        why = os.strerror(e.errno) if e.errno else str(e)
+        if e.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
+            why += f": choose a writable directory for {label}"
+        raise OutputError(f"{label} {path}: cannot write in {parent} ({why})") from None
+    os.close(fd)
+    probe.unlink(missing_ok=True)
+
+
+def check_outputs(outputs: Labelled, inputs: Labelled) -> None:
+    """`outputs` and `inputs` map a label as the user typed it (`-o`, `--rrd`, `INPUT`) to a path
+    (None: not given). Raises OutputError for the first output that cannot be written safely."""
+    given_in = {k: Path(v) for k, v in inputs.items() if v is not None}
+    seen: dict[str, Path] = {}
+    for label, out in outputs.items():
+        if out is None:
+            continue
+        out = Path(out)
+        for in_label, src in given_in.items():
+            if src.exists() and _same(out, src):
+                raise OutputError(
+                    f"{label} {out} is the input {in_label} {src}: it would be overwritten; choose another output path"
+                )
+            if src.is_dir() and _inside(out, src):
+                raise OutputError(
+                    f"{label} {out} is inside the input directory {in_label} {src}: "
+                    f"write the output elsewhere so the input stays untouched"
+                )
+        for other_label, other in seen.items():
+            if _same(out, other):
+                raise OutputError(f"{label} {out} is the same file as {other_label} {other}; give each output its own")
+        if out.is_dir():
+            raise OutputError(f"{label} {out} is a directory; give the path of a file to write")
+        _writable_dir(label, out)
+        seen[label] = out

@@ -1,0 +1,151 @@
+"""The Rerun recording's writer process (`python -m pipelines.outputs.rerun_process`), fed by `RerunResultWriter`.
+
+The recording is written in a process of its own so that importing rerun (and the pyarrow it pulls in),
+building the blueprint and encoding the rows run on another core than the filter, and the filter's
+process does not hold rerun's memory. Plain data only: numpy arrays in pickled commands on stdin, one
+JSON line per reply on stdout. It imports numpy and rerun, nothing of the filter.
+
+Commands (`pipelines.outputs.writer_process`): ("open", path, app_id, gps, landmarks), then any number of
+("rows", ...) and ("map", ...), then ("finish", final) or ("abort",). The file at `path` is the caller's
+temporary: the caller renames it once "finish" is answered. When stdin closes without "finish" or
+"abort" (the caller was killed) the rows received are flushed and the temporary is left, as the
+caller's own temporaries are, for the next run to remove.
+"""
+
+from __future__ import annotations
+
+import importlib.abc
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pipelines.outputs import writer_process
+
+
+def probability_colors(p: np.ndarray) -> np.ndarray:
+    """RGBA uint8 colours from blue (low) through green to red (high) for p scaled to its maximum."""
+    if len(p) == 0:
+        return np.empty((0, 4), dtype=np.uint8)
+    v = np.clip(p / max(float(p.max()), 1e-300), 0.0, 1.0)
+    r = np.clip(2 * v - 0.5, 0, 1)
+    g = np.clip(1.5 - np.abs(4 * v - 2), 0, 1)
+    b = np.clip(1.5 - 2 * v, 0, 1)
+    return (np.column_stack([r, g, b, np.ones_like(v)]) * 255).astype(np.uint8)
+
+
+def blueprint():
+    import rerun.blueprint as rrb
+
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial2DView(name="map", origin="world"),
+            rrb.Vertical(
+                rrb.TimeSeriesView(name="effective sample size", origin="stats/effective_sample_size"),
+                rrb.TimeSeriesView(name="map points", origin="stats/map_points"),
+                rrb.TimeSeriesView(name="step time [ms]", origin="stats/step_ms"),
+            ),
+            column_shares=[3, 1],
+        ),
+        collapse_panels=True,
+    )
+
+
+class Recorder:
+    """Writes the recording (`world/*` on the `scan` and `time` timelines, `stats/*`, `grid/*`)."""
+
+    def __init__(self, path: str, app_id: str, gps: np.ndarray | None, landmarks: np.ndarray | None) -> None:
+        import rerun as rr
+
+        self.rr = rr
+        self.path = Path(path)
+        self.rec = rr.RecordingStream(app_id)
+        self.rec.save(str(self.path), default_blueprint=blueprint())
+        # Colours and sizes of the per-step points, once for the whole recording.
+        self.rec.log("world/scan", rr.Points2D.from_fields(colors=[[255, 60, 200]], radii=0.06), static=True)
+        self.rec.log("world/particles", rr.Points2D.from_fields(colors=[[255, 140, 0]], radii=0.12), static=True)
+        if gps is not None and len(gps):
+            self.rec.log("world/gps", rr.LineStrips2D([gps[:, 1:3]], colors=[[40, 200, 40]], radii=0.08), static=True)
+        if landmarks is not None and len(landmarks):
+            self.rec.log(
+                "world/landmarks",
+                rr.Points2D(
+                    landmarks,
+                    colors=[[255, 200, 0]],
+                    radii=0.4,
+                    labels=[f"pole {i + 1}" for i in range(len(landmarks))],
+                ),
+                static=True,
+            )
+
+    def _set_time(self, scan: int, time_s: float) -> None:
+        self.rec.set_time("scan", sequence=scan)
+        self.rec.set_time("time", duration=time_s)
+
+    def rows(self, scans: np.ndarray, times_s: np.ndarray, columns: dict[str, tuple[np.ndarray, np.ndarray]]) -> None:
+        """One row per step on each path: `columns[path]` = (all the steps' points, points per step)."""
+        rr = self.rr
+        idx = [rr.TimeColumn("scan", sequence=scans), rr.TimeColumn("time", duration=times_s)]
+        for path, (points, counts) in columns.items():
+            self.rec.send_columns(path, indexes=idx, columns=rr.Points2D.columns(positions=points).partition(counts))
+
+    def map(self, scan: int, time_s: float, xy: np.ndarray, p: np.ndarray) -> None:
+        self._set_time(scan, time_s)
+        self.rec.log("world/map", self.rr.Points2D(xy, colors=probability_colors(p), radii=0.07))
+
+    def finish(self, final: dict[str, Any]) -> None:
+        """The per-step statistics, the final map and trajectories; then close the file."""
+        rr, rec = self.rr, self.rec
+        stats = final.get("stats")
+        if stats is not None and len(stats["scan"]):
+            idx = [rr.TimeColumn("scan", sequence=stats["scan"]), rr.TimeColumn("time", duration=stats["time"])]
+            for name in ("effective_sample_size", "map_points", "step_ms"):
+                rec.send_columns(f"stats/{name}", indexes=idx, columns=rr.Scalars.columns(scalars=stats[name]))
+            self.map(int(stats["scan"][-1]), float(stats["time"][-1]), *final["map"])
+            if final.get("landmark_ellipses") is not None:
+                rec.log(
+                    "world/landmark_ellipses",
+                    rr.LineStrips2D(final["landmark_ellipses"], colors=[[0, 200, 255]], radii=0.03),
+                )
+            if final.get("occupancy_image") is not None:
+                rec.log("grid/occupancy", rr.Image(final["occupancy_image"]))
+            rec.log("world/trajectory", rr.LineStrips2D([final["trajectory"]], colors=[[230, 30, 30]], radii=0.1))
+            rec.log("world/online", rr.LineStrips2D([final["online"]], colors=[[60, 120, 255]], radii=0.05))
+        self.close()
+
+    def close(self) -> None:
+        self.rec.flush()
+        self.rec.disconnect()
+
+    def abort(self) -> None:
+        self.close()
+        self.path.unlink(missing_ok=True)
+
+
+class _NoPandas(importlib.abc.MetaPathFinder):
+    """Refuses to import pandas (see `main`)."""
+
+    def find_spec(self, name, path=None, target=None):
+        if name == "pandas" or name.startswith("pandas."):
+            raise ModuleNotFoundError("pandas is not used by the Rerun writer", name=name)
+        return None
+
+
+def main() -> int:
+    # pyarrow (under rerun) imports pandas, when installed, at its first array: 0.5 s and 40 MB that the
+    # recording never uses. Refusing the import here is what pyarrow sees when pandas is not installed.
+    sys.meta_path.insert(0, _NoPandas())
+    # Imported now, not at "open": the caller may start this process before it knows what to open, so
+    # that this import runs while the caller starts up (`writer_process.start_rerun_writer`). A failure here
+    # is left for "open" to report.
+    try:
+        import rerun  # noqa: F401
+        import rerun.blueprint  # noqa: F401
+    except Exception:
+        pass
+    return writer_process.main(Recorder)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

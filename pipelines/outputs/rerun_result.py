@@ -1,0 +1,151 @@
+"""The Rerun recording (.rrd) of a run: steps gathered here, encoded and written by a process of its own
+(`pipelines.outputs.rerun_process`)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gslam.filter import SlamFilter
+from gslam.scan import ScanGeometry, inverse_measure
+from mcaplog.tempfiles import temporary_for
+from pipelines.outputs.writer_process import WriterProcess, start_rerun_writer
+from pipelines.run.runner import Step
+
+
+def covariance_ellipses(mean: np.ndarray, cov: np.ndarray, sigmas: float = 3.0, n: int = 24) -> list[np.ndarray]:
+    """Outlines (n points each) of the `sigmas`-sigma ellipses of 2-D Gaussians (K,2), (K,2,2)."""
+    t = np.linspace(0, 2 * np.pi, n)
+    circle = np.stack([np.cos(t), np.sin(t)])
+    out = []
+    for m, c in zip(mean, cov, strict=True):  # per landmark, a few dozen at most
+        vals, vecs = np.linalg.eigh(0.5 * (c + c.T))
+        out.append(m + (vecs @ (np.sqrt(np.maximum(vals, 0))[:, None] * sigmas * circle)).T)
+    return out
+
+
+class RerunResultWriter:
+    """Writes a Rerun recording (.rrd) with a default blueprint, on the `scan` and `time` timelines.
+
+    The recording is encoded and written by a process of its own (`pipelines.outputs.rerun_process`), started here:
+    this object gathers the steps, computes what needs the filter (scan end points, maps, trajectories)
+    and sends plain arrays; rerun is never imported in the filter's process."""
+
+    FLUSH_EVERY = 200
+    """Steps whose scans and particles are sent to the recording together, as columns (one `log` call
+    per step cost more than the filter on long logs)."""
+
+    def __init__(
+        self,
+        path: Path,
+        geometry: ScanGeometry,
+        snapshot_every: int,
+        t0_s: float,
+        gps: np.ndarray | None,
+        landmarks: np.ndarray | None,
+        app_id: str = "gslam",
+        writer: WriterProcess | None = None,
+    ) -> None:
+        """`writer`: the writer process started beforehand by `writerproc.start_rerun_writer`, if any."""
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.tmp = temporary_for(self.path)
+        self.geometry = geometry
+        self.snapshot_every = snapshot_every
+        self.t0_s = t0_s
+        self.bearings = geometry.bearings_rad
+        self.stats: dict[str, list[float]] = {k: [] for k in ("scan", "time", "ess", "map", "ms")}
+        self.online: list[np.ndarray] = []
+        self.pending_scans: list[tuple[np.ndarray, np.ndarray]] = []
+        self.pending_particles: list[np.ndarray] = []
+        self.finished = False
+        self.writer = writer if writer is not None else start_rerun_writer(self.path)
+        self.writer.open((str(self.tmp.resolve()), app_id, gps, landmarks))
+
+    # --- the steps ----------------------------------------------------------------------------
+    def step(self, st: Step, flt: SlamFilter) -> None:
+        r = st.result
+        self.pending_scans.append((st.event.ranges_m, st.laser_pose))  # end points computed at _flush
+        self.pending_particles.append(r.poses[:, :2].copy())
+        self.online.append(r.best_pose[:2].copy())
+        for key, value in (
+            ("scan", st.event.index),
+            ("time", st.event.t_s - self.t0_s),
+            ("ess", r.effective_sample_size),
+            ("map", r.map_points),
+            ("ms", st.step_ms),
+        ):
+            self.stats[key].append(value)
+        if self.snapshot_every and st.event.index % self.snapshot_every == 0:
+            # Sent on its own, not after a flush of the pending rows: every row and map carries its own
+            # times, so the order they reach the recording in does not matter; rows are sent FLUSH_EVERY
+            # steps at a time (a flush at every snapshot made 8 times as many, smaller, batches).
+            xy, p = flt.map_points(r.best)
+            # copies: a view would keep the filter's map buffer referenced until the sender thread has
+            # pickled it, and the map update could not write that buffer again (gslam.mapupdate.windowed)
+            xy, p = np.array(xy, dtype=np.float32), np.array(p, dtype=np.float32)
+            self.writer.send(("map", st.event.index, st.event.t_s - self.t0_s, xy, p))
+        if len(self.pending_scans) >= self.FLUSH_EVERY:
+            self._flush()
+
+    def _flush(self) -> None:
+        """Send the steps not yet sent: the scan end points and the particles, one row per step."""
+        n = len(self.pending_scans)
+        if n == 0:
+            return
+        columns = {}
+        for path, rows in (("world/scan", self._scan_end_points()), ("world/particles", self.pending_particles)):
+            columns[path] = (np.concatenate(rows), np.array([len(a) for a in rows]))
+        scans = np.asarray(self.stats["scan"][-n:])
+        times = np.asarray(self.stats["time"][-n:], dtype=float)
+        self.writer.send(("rows", scans, times, columns))
+        self.pending_scans, self.pending_particles = [], []
+
+    def _scan_end_points(self) -> list[np.ndarray]:
+        """The world-frame end points of the returns of each pending scan, computed for all at once."""
+        ranges = np.stack([r for r, _ in self.pending_scans])
+        poses = np.stack([pose for _, pose in self.pending_scans])
+        ok = np.isfinite(ranges) & (ranges < self.geometry.max_range_m)
+        row, beam = np.nonzero(ok)
+        pts = inverse_measure(poses[row], ranges[row, beam], self.bearings[beam])
+        return np.split(pts, np.cumsum(ok.sum(axis=1))[:-1])
+
+    def finish(self, flt: SlamFilter) -> Path:
+        if self.finished:
+            return self.path
+        self._flush()
+        final: dict[str, Any] = {}
+        if self.stats["scan"]:
+            best = flt.best_particle()
+            xy, p = flt.map_points(best)
+            _, traj = flt.best_trajectory()
+            final = {
+                "stats": {
+                    "scan": np.asarray(self.stats["scan"]),
+                    "time": np.asarray(self.stats["time"], dtype=float),
+                    "effective_sample_size": np.asarray(self.stats["ess"], dtype=float),
+                    "map_points": np.asarray(self.stats["map"], dtype=float),
+                    "step_ms": np.asarray(self.stats["ms"], dtype=float),
+                },
+                "map": (np.asarray(xy), np.asarray(p)),
+                "landmark_ellipses": covariance_ellipses(*flt.landmarks(best)) if hasattr(flt, "landmarks") else None,
+                "occupancy_image": None,
+                "trajectory": np.asarray(traj[:, :2]),
+                "online": np.asarray(self.online),
+            }
+            if hasattr(flt, "occupancy"):
+                prob, _, _ = flt.occupancy(best)
+                final["occupancy_image"] = (255 * (1 - prob.T[::-1])).astype(np.uint8)
+        self.writer.finish(("finish", final))
+        os.replace(self.tmp, self.path)
+        self.finished = True
+        return self.path
+
+    def abort(self) -> None:
+        try:
+            self.writer.abort()
+        finally:
+            Path(self.tmp).unlink(missing_ok=True)

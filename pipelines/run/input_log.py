@@ -1,0 +1,176 @@
+"""Read an input MCAP (from `gslam ingest`) as a stream of typed events in log-time order."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+
+from gslam.scan import ScanGeometry
+from mcaplog import channels as ch
+from mcaplog.mcapio import McapInput, Message
+from pipelines.errors import InputError
+from pipelines.run.mount import LaserMount
+
+
+@dataclass
+class ScanEvent:
+    index: int
+    t_s: float  # log time (monotone)
+    stamp_s: float  # the sensor's own time stamp (may go backwards in some logs)
+    ranges_m: np.ndarray
+    intensities: np.ndarray | None
+
+
+@dataclass
+class ControlEvent:
+    t_s: float
+    speed_mps: float
+    steering_rad: float
+
+
+@dataclass
+class OdomEvent:
+    t_s: float
+    pose: np.ndarray  # x, y, theta
+
+
+@dataclass
+class GpsEvent:
+    t_s: float
+    xy: np.ndarray
+
+
+Event = ScanEvent | ControlEvent | OdomEvent | GpsEvent
+INPUT_TOPICS = [ch.LASER, ch.ODOM_ACKERMANN, ch.ODOM_POSE, ch.GPS]
+
+
+class InputLog:
+    """An input MCAP: its metadata, sensor geometry, motion model, and its event stream."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self.mcap = McapInput(self.path)
+        try:
+            self.meta: dict[str, Any] = self.mcap.metadata()
+            summary = self.mcap.summary()
+        except Exception as e:
+            raise InputError(f"{self.path}: not a readable MCAP file ({type(e).__name__}: {e})") from None
+        if "result" in self.meta:
+            raise InputError(
+                f"{self.path}: a result of `gslam process`, not an input; give the MCAP from `gslam ingest`"
+            )
+        if "vehicle" not in self.meta or "dataset" not in self.meta:
+            raise InputError(f"{self.path}: no 'dataset'/'vehicle' metadata; is this an MCAP from `gslam ingest`?")
+        if "sensor" not in self.meta:
+            dataset = self.meta["dataset"]
+            name = dataset.get("name", "this log") if isinstance(dataset, dict) else "this log"
+            raise InputError(
+                f"{self.path}: {name} has no laser (no 'sensor' metadata, no {ch.LASER} messages); "
+                f"SLAM needs laser scans"
+            )
+        try:
+            s = self.meta["sensor"]
+            self.geometry = ScanGeometry(
+                int(s["beam_count"]),
+                *_finite(s["start_angle_rad"], s["angle_increment_rad"], s["max_range_m"]),
+            )
+            self.motion_model = self.meta["vehicle"].get("motion_model", "ackermann")
+            self.self_return_range_m = _finite(s.get("self_return_range_m", 0.0))[0]
+            # Only odometry logs carry a mount (ROS bags); for the rest base and laser are one frame.
+            self.mount = LaserMount.from_sensor(s) if self.motion_model == "odometry" else None
+        except (AttributeError, KeyError, TypeError, ValueError) as e:
+            raise InputError(f"{self.path}: 'sensor'/'vehicle' metadata malformed ({type(e).__name__}: {e})") from None
+        g = self.geometry
+        if not (1 <= g.beam_count <= 100_000 and g.angle_increment_rad > 0 and g.max_range_m > 0):
+            raise InputError(f"{self.path}: 'sensor' metadata out of range ({g})")
+        if self.motion_model not in ("ackermann", "odometry"):
+            raise InputError(f"{self.path}: unknown motion model {self.motion_model!r} in the 'vehicle' metadata")
+        counts = {}
+        if summary is not None and summary.statistics is not None:
+            for cid, channel in summary.channels.items():
+                counts[channel.topic] = summary.statistics.channel_message_counts.get(cid, 0)
+        self.counts = counts
+        if counts.get(ch.LASER, 0) == 0:
+            raise InputError(f"{self.path}: no {ch.LASER} messages; SLAM needs laser scans")
+        self.scan_count = counts[ch.LASER]
+        self.start_s = summary.statistics.message_start_time / 1e9
+        self.end_s = summary.statistics.message_end_time / 1e9
+
+    def _event(self, msg: Message) -> Event:
+        v = msg.value
+        if msg.topic == ch.LASER:
+            ranges = np.asarray(v.ranges, dtype=float)
+            if len(ranges) != self.geometry.beam_count:
+                raise ValueError(f"{len(ranges)} ranges, expected {self.geometry.beam_count}")
+            if np.isnan(ranges).any() or (ranges < 0).any():
+                raise ValueError("ranges must be non-negative numbers (+inf: no return)")
+            inten = np.asarray(v.intensities, dtype=float) if len(v.intensities) else None
+            return ScanEvent(-1, msg.t_s, ch.t_of(v.timestamp), ranges, inten)
+        if msg.topic == ch.ODOM_ACKERMANN:
+            return ControlEvent(msg.t_s, *_finite(v["speed_mps"], v["steering_rad"]))
+        if msg.topic == ch.ODOM_POSE:
+            return OdomEvent(msg.t_s, np.array(_finite(v["x_m"], v["y_m"], v["theta_rad"])))
+        return GpsEvent(msg.t_s, np.array(_finite(v.pose.position.x, v.pose.position.y)))
+
+    def events(self) -> Iterator[Event]:
+        """All input events in log-time order. Malformed messages raise InputError naming their index."""
+        k = 0
+        for ev in converted(self.mcap, INPUT_TOPICS, self._event):
+            if isinstance(ev, ScanEvent):
+                ev.index = k
+                k += 1
+            yield ev
+
+    def read_all(self, topic: str) -> list[Message]:
+        return list(converted(self.mcap, [topic], lambda m: m))
+
+    def gps_array(self) -> np.ndarray | None:
+        rows = list(converted(self.mcap, [ch.GPS], lambda m: [m.t_s, m.value.pose.position.x, m.value.pose.position.y]))
+        return np.array(rows) if rows else None
+
+    def head_controls_and_gps(self, seconds: float) -> tuple[np.ndarray, np.ndarray]:
+        """Ackermann controls and GPS fixes of the first `seconds` of the log (for initialisation)."""
+        controls, gps = [], []
+        for ev in converted(self.mcap, [ch.ODOM_ACKERMANN, ch.GPS], self._event):
+            if ev.t_s > self.start_s + seconds:
+                break
+            if isinstance(ev, GpsEvent):
+                gps.append([ev.t_s, *ev.xy])
+            else:
+                controls.append([ev.t_s, ev.speed_mps, ev.steering_rad])
+        return np.array(controls).reshape(-1, 3), np.array(gps).reshape(-1, 3)
+
+
+def _finite(*values: Any) -> list[float]:
+    out = [float(v) for v in values]
+    if not all(math.isfinite(v) for v in out):
+        raise ValueError(f"non-finite value in {out}")
+    return out
+
+
+T = TypeVar("T")
+
+
+def converted(mcap: McapInput, topics: list[str], convert: Callable[[Message], T]) -> Iterator[T]:
+    """`convert(msg)` for each message of `topics` in log-time order. A damaged file, or a message that
+    `convert` cannot read, raises InputError naming the file, the message's index and its topic."""
+    it = mcap.messages(topics)
+    n = 0
+    while True:
+        try:
+            msg = next(it)
+        except StopIteration:
+            return
+        except Exception as e:  # the mcap, zstd and protobuf libraries raise many types for damaged data
+            raise InputError(f"{mcap.path}: damaged MCAP after message {n} ({type(e).__name__}: {e})") from None
+        try:
+            out = convert(msg)
+        except (AttributeError, IndexError, KeyError, TypeError, ValueError) as e:
+            raise InputError(f"{mcap.path}: message {n} on {msg.topic} is malformed ({e})") from None
+        yield out
+        n += 1

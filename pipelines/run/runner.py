@@ -1,0 +1,255 @@
+"""Drive the filter core from an input event stream: motion between scans, initialisation, timing."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gslam.baselines.fastslam import FastSlamConfig, FastSlamFilter
+from gslam.baselines.grid_rbpf import GridConfig, GridSlam
+from gslam.config import FilterConfig, check_fields
+from gslam.filter import GSlamFilter, SlamFilter, StepResult
+from gslam.initialisation import fit_initial_heading
+from gslam.motion import apply_odometry, integrate_ackermann, odometry_delta
+from gslam.scan import Scan, ScanGeometry
+from gslam.vehicle import VEHICLE_PRESETS, AckermannVehicle, vehicle_preset
+from pipelines.errors import InputError
+from pipelines.run.input_log import ControlEvent, GpsEvent, InputLog, OdomEvent, ScanEvent
+from pipelines.run.mount import BaseFrameView
+
+METHODS = ("gslam", "fastslam1", "fastslam2", "grid", "grid-hr")
+
+
+@dataclass
+class RunConfig:
+    """What `gslam process` runs: the filter options plus the pipeline's own."""
+
+    filter: FilterConfig = field(default_factory=FilterConfig)
+    method: str = "gslam"
+    """gslam, or a baseline: fastslam1, fastslam2 (landmarks: poles, from intensity or geometry), grid
+    (about 3000 cells) or grid-hr (about 48000 cells) occupancy RBPF."""
+    vehicle: str | None = None
+    """Vehicle preset for Ackermann logs (default: the one named in the input's metadata)."""
+    init_heading_window_s: float = 5.0
+    """Seconds of GPS at the start used to fit the initial heading (Sydney logs)."""
+    map_snapshot_every: int = 25
+    """Write the best particle's map every this many scans (0: final map only)."""
+    max_scans: int | None = None
+    """Stop after this many scans (None: the whole log)."""
+    grid_cells: int | None = None
+    """Cells of the grid baselines (default: 3000 for grid, 48000 for grid-hr, as in the paper)."""
+    laser_yaw_offset_rad: float = 0.0
+    """Mounting yaw of the laser relative to the vehicle axis, added to every bearing (calibration)."""
+    threads: int | None = None
+    """Worker threads of the filter's compiled particle loops (None: every core). Results do not depend
+    on it."""
+    occupancy: bool = False
+    """Also write the final trinary occupancy grid on /map/occupancy (pipelines.outputs.navigation_map)."""
+    occupancy_resolution_m: float = 0.05
+    """Cell size of that grid [m]."""
+
+    RUN_OPTIONS = (
+        "method",
+        "vehicle",
+        "init_heading_window_s",
+        "map_snapshot_every",
+        "max_scans",
+        "laser_yaw_offset_rad",
+        "occupancy",
+        "occupancy_resolution_m",
+    )
+    LIMITS = {
+        "init_heading_window_s": (0.0, 3600.0, False),
+        "max_scans": (1, math.inf, True),
+        "grid_cells": (16, 10_000_000, True),
+        "laser_yaw_offset_rad": (-math.pi, math.pi, True),
+    }
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Every run option checked by type and range (as FilterConfig's), method and vehicle by name."""
+        if not isinstance(self.filter, FilterConfig):
+            raise ValueError(f"filter must be a FilterConfig, got {type(self.filter).__name__}")
+        check_fields(self, self.LIMITS, skip=("filter",))
+        if self.method not in METHODS:
+            raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
+        if self.vehicle is not None and self.vehicle not in VEHICLE_PRESETS:
+            raise ValueError(f"vehicle must be one of {', '.join(VEHICLE_PRESETS)}, got {self.vehicle!r}")
+
+    def as_dict(self) -> dict:
+        return {"filter": self.filter.as_dict(), **{k: getattr(self, k) for k in self.RUN_OPTIONS}}
+
+
+@dataclass
+class Step:
+    event: ScanEvent
+    result: StepResult
+    """The filter's step; its poses are the base's where the input records a laser mount."""
+    step_ms: float
+    laser_pose: np.ndarray
+    """The best particle's laser pose (where the scan was taken)."""
+
+
+def make_filter(cfg: RunConfig, initial_pose: np.ndarray, self_return_range_m: float = 0.0) -> SlamFilter:
+    """The SLAM method `cfg.method`, sharing the particle count, seed and range limit of cfg.filter (or,
+    when that is None, the input's `self_return_range_m`)."""
+    min_range_m = cfg.filter.min_range_m if cfg.filter.min_range_m is not None else self_return_range_m
+    if cfg.method == "gslam":
+        threads = cfg.threads or os.cpu_count() or 1
+        import numba
+
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+        return GSlamFilter(cfg.filter, initial_pose, threads=threads)
+    if cfg.method in ("fastslam1", "fastslam2"):
+        fs = FastSlamConfig(
+            particles=cfg.filter.particles,
+            seed=cfg.filter.seed,
+            version=int(cfg.method[-1]),
+            resample_threshold=cfg.filter.resample_threshold,
+        )
+        return FastSlamFilter(fs, initial_pose, min_range_m)
+    if cfg.method in ("grid", "grid-hr"):
+        cells = cfg.grid_cells or (3000 if cfg.method == "grid" else 48000)
+        return GridSlam(
+            GridConfig(
+                particles=cfg.filter.particles,
+                seed=cfg.filter.seed,
+                cells=cells,
+                min_range_m=min_range_m,
+                resample_threshold=cfg.filter.resample_threshold,
+            ),
+            initial_pose,
+        )
+    raise ValueError(f"unknown method {cfg.method!r}; choose one of {', '.join(METHODS)}")
+
+
+class SlamRunner:
+    """Streams an `InputLog` through a `GSlamFilter`, one scan at a time."""
+
+    def __init__(self, log: InputLog, cfg: RunConfig) -> None:
+        self.log = log
+        self.cfg = cfg
+        self.vehicle: AckermannVehicle | None = None
+        if log.motion_model == "ackermann":
+            self.vehicle = vehicle_preset(cfg.vehicle or log.meta["vehicle"].get("preset", "carpark"))
+        if cfg.vehicle is not None and self.vehicle is None:
+            raise InputError(
+                f"{log.path}: vehicle {cfg.vehicle!r} given, but this log has {log.motion_model} poses, not an "
+                f"Ackermann vehicle's controls; the vehicle preset applies to Sydney logs only (drop --vehicle)"
+            )
+        self.initialised_from_gps = False
+        """Whether the initial pose was fitted to GPS (the map is then in the GPS and survey frame)."""
+        self.initial_pose, self.t_init_s = self._initial_pose()
+        self.min_range_m = cfg.filter.min_range_m if cfg.filter.min_range_m is not None else log.self_return_range_m
+        self.filter = make_filter(
+            cfg, np.zeros(3) if self.initial_pose is None else self.initial_pose, log.self_return_range_m
+        )
+        self.mount = log.mount
+        self.output_filter = self.filter if self.mount is None else BaseFrameView(self.filter, self.mount)
+        """What the outputs read: the filter, seen from the base when the laser is mounted off it."""
+        self.gps: list[tuple[float, float, float]] = []
+
+    def _initial_pose(self) -> tuple[np.ndarray | None, float | None]:
+        if self.vehicle is None:
+            return None, None  # odometry logs start at the first scan's odometry pose
+        controls, gps = self.log.head_controls_and_gps(self.cfg.init_heading_window_s + 1.0)
+        if len(controls) == 0:
+            raise InputError(f"{self.log.path}: no odometry in the first seconds; cannot start the filter")
+        if len(gps) >= 3:
+            self.initialised_from_gps = True
+            return fit_initial_heading(controls, gps, self.vehicle, self.cfg.init_heading_window_s), float(gps[0, 0])
+        return np.zeros(3), float(controls[0, 0])
+
+    def steps(self) -> Iterator[Step]:
+        fcfg = self.cfg.filter
+        controls: list[list[float]] = []
+        last_control: list[float] | None = None
+        t_prev = self.t_init_s
+        odom_prev: np.ndarray | None = None
+        odom_last: np.ndarray | None = None
+        geom = self.log.geometry
+        if self.cfg.laser_yaw_offset_rad:
+            geom = ScanGeometry(
+                geom.beam_count,
+                geom.start_angle_rad + self.cfg.laser_yaw_offset_rad,
+                geom.angle_increment_rad,
+                geom.max_range_m,
+            )
+        for ev in self.log.events():
+            if isinstance(ev, ControlEvent):
+                controls.append([ev.t_s, ev.speed_mps, ev.steering_rad])
+            elif isinstance(ev, OdomEvent):
+                odom_last = ev.pose
+            elif isinstance(ev, GpsEvent):
+                self.gps.append((ev.t_s, float(ev.xy[0]), float(ev.xy[1])))
+            elif isinstance(ev, ScanEvent):
+                predict = None
+                if self.vehicle is not None:
+                    if t_prev is None or ev.t_s < t_prev:
+                        # before initialisation time: keep only the latest control
+                        last_control = controls[-1] if controls else last_control
+                        controls = []
+                        continue
+                    rows = ([last_control] if last_control is not None else []) + controls
+                    u = np.asarray(rows, dtype=float).reshape(-1, 3)
+                    t0, t1 = t_prev, ev.t_s
+                    vehicle = self.vehicle
+
+                    def predict(poses, rng, u=u, t0=t0, t1=t1, vehicle=vehicle):
+                        return integrate_ackermann(
+                            poses,
+                            u,
+                            t1,
+                            t0,
+                            vehicle,
+                            rng,
+                            fcfg.speed_sigma_mps,
+                            fcfg.speed_sigma_rel,
+                            fcfg.steering_sigma_rad,
+                            per_sample=fcfg.control_noise == "per_sample",
+                        )
+
+                    if controls:
+                        last_control = controls[-1]
+                    controls = []
+                    t_prev = ev.t_s
+                else:
+                    if odom_last is None:
+                        raise InputError(f"{self.log.path}: scan {ev.index} has no odometry before it")
+                    mount = self.mount
+                    if odom_prev is None:
+                        self.filter.poses[:] = odom_last if mount is None else mount.laser_of(odom_last)
+                    else:
+                        delta = odometry_delta(odom_prev, odom_last)
+                        if mount is None:
+
+                            def predict(poses, rng, delta=delta):
+                                return apply_odometry(poses, delta, rng, fcfg.odom_sigma)
+
+                        else:
+                            # The odometry (and its noise) moves the base; the particles are laser poses.
+                            def predict(poses, rng, delta=delta, mount=mount):
+                                base = apply_odometry(mount.base_of(poses), delta, rng, fcfg.odom_sigma)
+                                return mount.laser_of(base)
+
+                    odom_prev = odom_last
+                scan = Scan(ev.stamp_s, ev.ranges_m, geom, self.min_range_m)
+                t0 = time.perf_counter()
+                result = self.filter.step(scan, predict, ev.intensities)
+                step_ms = (time.perf_counter() - t0) * 1e3
+                laser_pose = result.best_pose
+                if self.mount is not None:
+                    result = dataclasses.replace(
+                        result, poses=self.mount.base_of(result.poses), best_pose=self.mount.base_of(result.best_pose)
+                    )
+                yield Step(ev, result, step_ms, laser_pose)
+                if self.cfg.max_scans is not None and ev.index + 1 >= self.cfg.max_scans:
+                    break
