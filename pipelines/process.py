@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from gslam import __version__
-from mcaplog import channels as ch
 from pipelines.outputs.mcap_result import McapResultWriter
 from pipelines.outputs.rerun_result import RerunResultWriter
+from pipelines.outputs.writer import OccupancyMap, ResultWriter, RunEnd, RunStart
 from pipelines.outputs.writer_process import WriterProcess, usage
 from pipelines.run.input_log import InputLog
 from pipelines.run.runner import RunConfig, SlamRunner
@@ -55,21 +55,12 @@ class ProcessSummary:
 
 
 def peak_rss_mb() -> float:
-    """This process's peak resident memory so far (MB), its own (`writerproc.usage`)."""
+    """This process's peak resident memory so far (MB), its own (`writer_process.usage`)."""
     return usage()["peak_rss_mb"]
 
 
-def _landmarks(log: InputLog) -> np.ndarray | None:
-    msgs = log.read_all(ch.LANDMARKS_TRUTH)
-    if not msgs:
-        return None
-    return np.column_stack([msgs[0].value["x_m"], msgs[0].value["y_m"]])
-
-
-def _write_occupancy(
-    mcap_out: McapResultWriter, runner: SlamRunner, log: InputLog, scan_indices: list[int], cfg: RunConfig
-) -> None:
-    """The final trinary occupancy grid on /map/occupancy (scans cast from the final laser poses)."""
+def _occupancy(runner: SlamRunner, log: InputLog, scan_indices: list[int], cfg: RunConfig) -> OccupancyMap:
+    """The final trinary occupancy grid (scans cast from the final laser poses), for /map/occupancy."""
     from pipelines.outputs.navigation_map import build_grid, occupancy_probabilities
 
     flt = runner.filter  # laser poses: where the scans were taken
@@ -78,8 +69,13 @@ def _write_occupancy(
     p = occupancy_probabilities(p, getattr(cfg.filter, "map_update", "binary"))
     grid = build_grid(log, np.asarray(scan_indices), laser, xy, p, cfg.occupancy_resolution_m, cfg.laser_yaw_offset_rad)
     t_last = float(times[-1]) if len(times) else 0.0
-    msg = ch.navigation_grid(t_last, grid.state, grid.spec.origin_xy_m, grid.spec.resolution_m)
-    mcap_out.writer.write_proto(ch.MAP_OCCUPANCY, msg, mcap_out.last_ns)
+    return OccupancyMap(t_last, grid.state, grid.spec.origin_xy_m, grid.spec.resolution_m)
+
+
+def _abort(writers: list[ResultWriter]) -> None:
+    """The one way a run that cannot be completed ends: every writer drops its file."""
+    for w in writers:
+        w.abort()
 
 
 def process(
@@ -91,55 +87,41 @@ def process(
     command: str | None = None,
     rrd_writer: WriterProcess | None = None,
 ) -> ProcessSummary:
-    """Run the filter over `input_path`. Ctrl-C or an error mid-run still finishes both outputs with the
-    steps done so far (the error is re-raised after). `rrd_writer`: the Rerun recording's writer process,
-    started beforehand by `writerproc.start_rerun_writer(rrd_path)` so that its start-up overlaps the
-    caller's (aborted here if the run cannot start)."""
-    # The Rerun writer's process starts before the filter (here, or earlier by the caller): its start-up
-    # (importing rerun, ~0.5 s of processor time) overlaps the filter's, which is one thread until its first
-    # update (numba's registries, loading the compiled kernels) and leaves the other core idle.
-    rrd_out = None
+    """Run the filter over `input_path` into the result MCAP `output_path` and the Rerun recording
+    `rrd_path` (None: none). Ctrl-C or an error mid-run still finishes the outputs with the steps done so
+    far (the error is re-raised after). `rrd_writer`: the recording's writer process, started beforehand
+    by `writer_process.start_rerun_writer` (aborted here if the run cannot start)."""
+    # The result MCAP first: the writers finish in reverse order, so that its record holds the figures
+    # the others add to it.
+    writers: list[ResultWriter] = [McapResultWriter(output_path, cfg.map_snapshot_every)]
+    if rrd_path is not None:
+        writers.append(RerunResultWriter(rrd_path, cfg.map_snapshot_every, writer=rrd_writer))
+    elif rrd_writer is not None:
+        rrd_writer.abort()  # started for a recording this run does not write
     try:
         log = InputLog(input_path)
-        if rrd_path is not None:
-            gps, landmarks = log.gps_array(), _landmarks(log)
-            rrd_out = RerunResultWriter(
-                rrd_path, log.geometry, cfg.map_snapshot_every, log.start_s, gps, landmarks, writer=rrd_writer
-            )
-    except BaseException:
-        if rrd_writer is not None:
-            rrd_writer.abort()
-        raise
-    if rrd_out is None and rrd_writer is not None:
-        rrd_writer.abort()  # started for a recording this run does not write
-    skip_blas_probe()
-    try:
+        skip_blas_probe()
         runner = SlamRunner(log, cfg)
+        metadata = {
+            "gslam": {"version": __version__, "command": command or " ".join(sys.argv), "method": cfg.method},
+            "config": cfg.as_dict(),
+            "input": {
+                "path": str(Path(input_path).resolve()),
+                "dataset": log.meta.get("dataset", {}).get("name", ""),
+                "sensor": log.meta.get("sensor", {}),
+                "vehicle": log.meta.get("vehicle", {}),
+            },
+            "initialisation": {
+                "pose": None if runner.initial_pose is None else runner.initial_pose.tolist(),
+                "t_s": runner.t_init_s,
+                "heading_window_s": cfg.init_heading_window_s,
+                "from_gps": runner.initialised_from_gps,
+            },
+        }
+        for w in writers:
+            w.start(RunStart(log, metadata))
     except BaseException:
-        if rrd_out is not None:
-            rrd_out.abort()
-        raise
-    metadata = {
-        "gslam": {"version": __version__, "command": command or " ".join(sys.argv), "method": cfg.method},
-        "config": cfg.as_dict(),
-        "input": {
-            "path": str(Path(input_path).resolve()),
-            "dataset": log.meta.get("dataset", {}).get("name", ""),
-            "sensor": log.meta.get("sensor", {}),
-            "vehicle": log.meta.get("vehicle", {}),
-        },
-        "initialisation": {
-            "pose": None if runner.initial_pose is None else runner.initial_pose.tolist(),
-            "t_s": runner.t_init_s,
-            "heading_window_s": cfg.init_heading_window_s,
-            "from_gps": runner.initialised_from_gps,
-        },
-    }
-    try:
-        mcap_out = McapResultWriter(output_path, metadata, cfg.map_snapshot_every)
-    except BaseException:
-        if rrd_out is not None:
-            rrd_out.abort()
+        _abort(writers)
         raise
     total = log.scan_count if cfg.max_scans is None else min(cfg.max_scans, log.scan_count)
     step_ms: list[float] = []
@@ -153,9 +135,8 @@ def process(
     t_prev = t_start
     try:
         for st in runner.steps():
-            mcap_out.step(st, runner.output_filter)
-            if rrd_out is not None:
-                rrd_out.step(st, runner.output_filter)
+            for w in writers:
+                w.step(st, runner.output_filter)
             now = time.perf_counter()
             step_ms.append((now - t_prev) * 1e3)
             t_prev = now
@@ -208,26 +189,23 @@ def process(
         "particles": cfg.filter.particles,
         "points_per_observation": cfg.filter.points_per_observation,
     }
+    errors: list[Exception] = []
     try:
+        occupancy = None
         if cfg.occupancy and not interrupted and scan_indices:
-            _write_occupancy(mcap_out, runner, log, scan_indices, cfg)
-        rrd_error: Exception | None = None
-        if rrd_out is not None:
+            occupancy = _occupancy(runner, log, scan_indices, cfg)
+        end = RunEnd(flt, result_meta, occupancy)
+        for w in reversed(writers):
             try:
-                rrd_out.finish(flt)  # first, so that the result records the writer's memory
-                result_meta["peak_rss_mb_rrd_writer"] = rrd_out.writer.peak_rss_mb
-                result_meta["cpu_s_rrd_writer"] = rrd_out.writer.cpu_s
-            except Exception as e:  # the recording is lost, not the result: finish the MCAP, then say so
-                rrd_out.abort()
-                rrd_error = e
-        mcap_out.finish(flt, result_meta)
+                w.finish(end)
+            except Exception as e:  # this output is lost, not the others: finish them, then say so
+                w.abort()
+                errors.append(e)
     except BaseException:
-        mcap_out.abort()
-        if rrd_out is not None:
-            rrd_out.abort()
+        _abort(writers)
         raise
-    if rrd_error is not None:
-        raise rrd_error
+    if errors:
+        raise errors[0]
     if error is not None:
         written = " and ".join(str(p) for p in (output_path, rrd_path) if p is not None)
         error.add_note(f"wrote {written} with the {summary.steps} steps done, marked interrupted")

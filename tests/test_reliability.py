@@ -239,7 +239,7 @@ def test_eval_says_a_result_is_partial_and_withholds_pole_error_without_gps(tmp_
 # ---- 4. faults: SIGTERM, SIGKILL, stale temporaries ------------------------------------------------
 def _start(args: list[str], env_extra: dict[str, str] | None = None) -> subprocess.Popen:
     env = dict(os.environ, GSLAM_PROGRESS_EVERY_S="0.05", GSLAM_PROGRESS="", **(env_extra or {}))
-    cmd = [sys.executable, "-m", "pipelines.cli.app", *map(str, args)]
+    cmd = [sys.executable, "-m", "pipelines.cli", *map(str, args)]
     return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
@@ -305,13 +305,6 @@ def test_help_shows_bracketed_words_and_defaults():
     assert "[filter] options and run options" in text
     assert "[default: (8); 1<=x<=4096]" in " ".join(text.split())  # particles: FilterConfig's default
     assert "[options]" in run("sweep", "--help").output
-
-
-def test_method_choices_match_the_runner():
-    from pipelines.cli.app import METHOD_NAMES
-    from pipelines.run.runner import METHODS
-
-    assert METHOD_NAMES == METHODS
 
 
 def test_plot_titles_and_legends_inside_the_figure_and_off_the_data(tiny):

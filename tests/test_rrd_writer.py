@@ -13,6 +13,7 @@ import pytest
 from gslam.scan import ScanGeometry
 from pipelines.errors import OutputError
 from pipelines.outputs.rerun_result import RerunResultWriter
+from pipelines.outputs.writer import RunEnd
 
 ROOT = Path(__file__).resolve().parents[1]
 GEOMETRY = ScanGeometry(181, -np.pi / 2, np.pi / 180, 30.0)
@@ -43,6 +44,11 @@ class _Flt:
         return np.arange(3.0), np.zeros((3, 3))
 
 
+def _opened(writer: RerunResultWriter, landmarks: np.ndarray | None) -> RerunResultWriter:
+    writer.open(GEOMETRY, 0.0, None, landmarks)
+    return writer
+
+
 def _rows(writer: RerunResultWriter, n: int) -> None:
     for i in range(n):
         writer.stats["scan"].append(i)
@@ -56,11 +62,11 @@ def _rows(writer: RerunResultWriter, n: int) -> None:
 
 def test_a_recording_is_written_through_its_temporary(tmp_path):
     out = tmp_path / "r.rrd"
-    writer = RerunResultWriter(out, GEOMETRY, 0, 0.0, None, np.array([[1.0, 1.0]]))
+    writer = _opened(RerunResultWriter(out, 0), np.array([[1.0, 1.0]]))
     _rows(writer, 250)
     writer._flush()
     assert not out.exists()
-    assert writer.finish(_Flt()) == out
+    assert writer.finish(RunEnd(_Flt(), {})) == out
     assert out.stat().st_size > 10_000 and not list(tmp_path.glob(".*.tmp"))
     assert writer.writer.peak_rss_mb > 10
     rerun = Path(sys.executable).with_name("rerun")
@@ -71,19 +77,19 @@ def test_a_recording_is_written_through_its_temporary(tmp_path):
 
 def test_a_writer_that_stopped_is_one_clear_error_and_leaves_nothing(tmp_path):
     out = tmp_path / "r.rrd"
-    writer = RerunResultWriter(out, GEOMETRY, 0, 0.0, None, None)
+    writer = _opened(RerunResultWriter(out, 0), None)
     _rows(writer, 10)
     writer.writer.proc.kill()
     writer.writer.proc.wait()
     with pytest.raises(OutputError, match=r"r\.rrd: the writer of the Rerun recording stopped"):
-        writer.finish(_Flt())
+        writer.finish(RunEnd(_Flt(), {}))
     writer.abort()
     assert not out.exists() and not list(tmp_path.glob(".*.tmp"))
 
 
 def test_abort_removes_the_temporary(tmp_path):
     out = tmp_path / "r.rrd"
-    writer = RerunResultWriter(out, GEOMETRY, 0, 0.0, None, None)
+    writer = _opened(RerunResultWriter(out, 0), None)
     _rows(writer, 10)
     writer._flush()
     writer.abort()
@@ -102,7 +108,7 @@ def test_a_map_snapshot_is_sent_as_a_copy_not_a_view_of_the_filters_buffer(tmp_p
         def map_points(self, particle: int):
             return buffer_xy[5:15], buffer_p[5:15]
 
-    writer = RerunResultWriter(tmp_path / "s.rrd", GEOMETRY, 25, 0.0, None, None)
+    writer = _opened(RerunResultWriter(tmp_path / "s.rrd", 25), None)
     sent = []
     writer.writer.send = sent.append
     result = SimpleNamespace(

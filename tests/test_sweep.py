@@ -69,7 +69,7 @@ def test_resume_after_killing_a_sweep(carpark_mcap, tmp_path):
     spec_path = write_spec(tmp_path / "s.toml", [carpark_mcap], seeds=(0, 1, 2, 3), particles=(2, 3))
     out = tmp_path / "out"
     env = dict(os.environ, GSLAM_PROGRESS="")
-    cmd = [sys.executable, "-m", "pipelines.cli.app", "sweep", str(spec_path), "-o", str(out), "--workers", "1"]
+    cmd = [sys.executable, "-m", "pipelines.cli", "sweep", str(spec_path), "-o", str(out), "--workers", "1"]
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     deadline = time.time() + 120
     while time.time() < deadline and len(list(out.glob("tasks/*/metrics.json"))) < 2:

@@ -13,9 +13,8 @@ from pathlib import Path
 
 from gslam import __version__
 from gslam.config import FilterConfig
-from pipelines.evaluation.evaluate import evaluate_result
-from pipelines.process import process
-from pipelines.run.runner import RunConfig
+from pipelines.bench.tasks import Task, run_task
+from pipelines.methods import METHODS, NAMES
 
 # Table 3 of the paper: (N, M) -> (ms per step, position error m).
 PAPER_TABLE3: dict[tuple[int, int], tuple[float, float]] = {
@@ -31,7 +30,6 @@ PAPER_TABLE3: dict[tuple[int, int], tuple[float, float]] = {
 }
 FULL_GRID = [(n, m) for n in (2, 8, 30) for m in (4, 10, 20)]
 QUICK_GRID = [(2, 4), (8, 10)]
-METHODS = ("gslam", "fastslam1", "fastslam2", "grid", "grid-hr")
 # Table 4 of the paper: (method, N) -> (ms per step, position error m).
 PAPER_TABLE4: dict[tuple[str, int], tuple[float, float]] = {
     ("gslam", 2): (22, 1.55),
@@ -98,34 +96,35 @@ def run_bench(
     `seeds` seeds, end to end (MCAP and Rerun written), and evaluate."""
     results = []
     base_dict = (base or FilterConfig()).as_dict()
-    runs = [("gslam", n, m) for n, m in grid] if "gslam" in methods else []
-    for method in methods:
-        if method != "gslam":
-            runs += [(method, n, 0) for n in sorted({n for n, _ in grid})]
+    runs = []  # the methods that take M over the whole grid first, then the others at each N
+    for name in sorted(methods, key=lambda name: not METHODS[name].takes_points):
+        if METHODS[name].takes_points:
+            runs += [(name, n, m) for n, m in grid]
+        else:
+            runs += [(name, n, 0) for n in sorted({n for n, _ in grid})]
     with tempfile.TemporaryDirectory(prefix="gslam-bench-") as tmp:
         for method, n, m in runs:
             cell = CellResult(n, m, method)
             for seed in range(seeds):
-                opts = dict(base_dict, particles=n, points_per_observation=max(m, 1), seed=seed)
-                cfg = RunConfig(filter=FilterConfig.from_dict(opts), method=method)
+                options = {k: v for k, v in base_dict.items() if k not in ("particles", "points_per_observation")}
+                options.pop("seed")
+                task = Task(input_mcap, method, n, max(m, 1), seed, options)
                 out = Path(tmp) / f"{method}_n{n}_m{m}_s{seed}.mcap"
                 t0 = time.perf_counter()
-                summary = process(input_mcap, out, out.with_suffix(".rrd"), cfg, command="gslam bench")
-                metrics = evaluate_result(out, input_mcap)
+                run = run_task(task, out, out.with_suffix(".rrd"), command="gslam bench")
+                metrics, result = run.metrics, run.result
                 cell.errors_m.append(metrics["gps_mean_error_m"])
                 cell.online_errors_m.append(metrics["gps_mean_error_online_m"])
-                cell.filter_ms.append(summary.ms_per_step_filter_median)
-                cell.filter_mean_ms.append(summary.ms_per_step_filter_mean)
-                cell.end_to_end_ms.append(summary.ms_per_step_median)
-                cell.rtf.append(summary.real_time_factor)
-                cell.map_points.append(summary.final_map_points)
+                cell.filter_ms.append(result["ms_per_step_filter_median"])
+                cell.filter_mean_ms.append(result["ms_per_step_filter_mean"])
+                cell.end_to_end_ms.append(result["ms_per_step_median"])
+                cell.rtf.append(result["real_time_factor"])
+                cell.map_points.append(result["final_map_points"])
                 if progress is not None:
                     progress(
                         f"{method} N {n:>2} M {m:>2} seed {seed}: {metrics['gps_mean_error_m']:.2f} m, "
-                        f"{summary.ms_per_update_mean:.1f} ms per update ({time.perf_counter() - t0:.0f} s)"
+                        f"{result['ms_per_update_mean']:.1f} ms per update ({time.perf_counter() - t0:.0f} s)"
                     )
-                out.unlink(missing_ok=True)
-                out.with_suffix(".rrd").unlink(missing_ok=True)
             results.append(cell)
     return results
 
@@ -183,7 +182,7 @@ def markdown_table(results: list[CellResult], seeds: int, command: str, wall_s: 
             "| final map (points or landmarks) |",
             "|---|---|---|---|---|---|---|---|",
         ]
-        for c in sorted(table4 + baselines, key=lambda c: (c.particles, METHODS.index(c.method))):
+        for c in sorted(table4 + baselines, key=lambda c: (c.particles, NAMES.index(c.method))):
             paper = PAPER_TABLE4.get((c.method, c.particles))
             lines.append(
                 f"| {c.method} | {c.particles} | {c.points or '-'} | {_mean_sd(c.errors_m)} "

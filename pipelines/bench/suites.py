@@ -10,7 +10,6 @@ import os
 import re
 import statistics
 import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -91,53 +90,31 @@ def run_process(input_mcap: Path, particles: int, seed: int, threads: int, workd
     """`gslam process INPUT OUT --particles N --seed S [--threads K]` in a child process, as a user runs it
     (result MCAP and Rerun recording written), timed whole; then `gslam eval` on the result. threads 0:
     the default, every core."""
-    out = workdir / f"{input_mcap.stem}_n{particles}_s{seed}_t{threads}.mcap"
-    cmd = [
-        sys.executable,
-        "-m",
-        "pipelines.cli.app",
-        "process",
-        str(input_mcap),
-        str(out),
-        "--particles",
-        str(particles),
-        "--seed",
-        str(seed),
-    ]
-    if threads:  # 0: the default (every core)
-        cmd += ["--threads", str(threads)]
-    t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True)
-    wall = time.perf_counter() - t0
-    if proc.returncode != 0:
-        last = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
-        raise RuntimeError(f"{' '.join(cmd)} failed: {last}")
-    from pipelines.evaluation.evaluate import evaluate_result, read_result, read_update_times
+    from pipelines.bench.tasks import Task, run_task
+    from pipelines.evaluation.evaluate import read_update_times
 
-    metrics = evaluate_result(out, input_mcap)
-    result_meta = read_result(out).metadata["result"]
-    peak_mb = float(result_meta.get("peak_rss_mb") or float("nan"))
-    writer_mb = float(result_meta.get("peak_rss_mb_rrd_writer") or float("nan"))
+    out = workdir / f"{input_mcap.stem}_n{particles}_s{seed}_t{threads}.mcap"
+    task = Task(input_mcap, particles=particles, seed=seed, threads=threads or None)
+    run = run_task(task, out, out.with_suffix(".rrd"), child_process=True, keep=True)
     update_ms = read_update_times(out)
+    for p in (out, out.with_suffix(".rrd")):
+        p.unlink(missing_ok=True)
     tenth = max(1, len(update_ms) // 10)
     second = update_ms[tenth : 2 * tenth]
     last = update_ms[-tenth:]
     ratio = statistics.median(last) / statistics.median(second) if second and last else float("nan")
-    run = SuiteRun(
+    return SuiteRun(
         input_mcap.stem,
         particles,
         seed,
         threads,
-        wall,
-        peak_mb,
-        metrics,
+        run.wall_s,
+        float(run.result.get("peak_rss_mb") or float("nan")),
+        run.metrics,
         update_ms,
         ratio,
-        writer_mb,
+        float(run.result.get("peak_rss_mb_rrd_writer") or float("nan")),
     )
-    for p in (out, out.with_suffix(".rrd")):
-        p.unlink(missing_ok=True)
-    return run
 
 
 def ingest_to(log: Path, workdir: Path) -> Path:

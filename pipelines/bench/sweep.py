@@ -28,8 +28,8 @@ from typing import Any
 
 from gslam import __version__
 from mcaplog.tempfiles import write_atomic
+from pipelines.methods import NAMES as METHODS
 
-METHODS = ("gslam",)
 SPEC_KEYS = {"inputs", "methods", "particles", "points", "seeds", "options", "keep_results", "rrd"}
 
 
@@ -140,10 +140,8 @@ def task_id(task: dict[str, Any]) -> str:
 
 def run_task(task: dict[str, Any], results_dir: str) -> dict[str, Any]:
     """Run one task (in a worker process): process + eval; never raises, the record says what happened."""
-    from gslam.config import FilterConfig
-    from pipelines.evaluation.evaluate import evaluate_result
-    from pipelines.process import process
-    from pipelines.run.runner import RunConfig
+    from pipelines.bench.tasks import Task
+    from pipelines.bench.tasks import run_task as run_one
 
     out_dir = Path(results_dir) / "tasks" / task["id"]
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -159,14 +157,9 @@ def run_task(task: dict[str, Any], results_dir: str) -> dict[str, Any]:
     result_path = out_dir / "result.mcap"
     try:
         with redirect_stdout(log), redirect_stderr(log):
-            opts = dict(
-                task["options"], particles=task["particles"], points_per_observation=task["points"], seed=task["seed"]
-            )
-            cfg = RunConfig(filter=FilterConfig.from_dict(opts))
             rrd = result_path.with_suffix(".rrd") if task.get("rrd") and task.get("keep_results") else None
-            summary = process(Path(task["input"]), result_path, rrd, cfg, command=f"gslam sweep task {task['id']}")
-            metrics = evaluate_result(result_path, Path(task["input"]))
-        record.update(status="ok", metrics=metrics, steps=summary.steps)
+            run = run_one(Task.of(task), result_path, rrd, command=f"gslam sweep task {task['id']}", keep=True)
+        record.update(status="ok", metrics=run.metrics, steps=run.result["steps"])
     except BaseException as e:  # recorded, not raised: one failing task must not stop the sweep
         if isinstance(e, KeyboardInterrupt):
             raise

@@ -15,6 +15,7 @@ from gslam.config import FilterConfig
 from gslam.vehicle import VEHICLE_PRESETS
 from pipelines.cli.errors import OneLineErrors, fail, guarded
 from pipelines.cli.progress import reporting
+from pipelines.methods import NAMES as METHOD_NAMES
 
 app = typer.Typer(
     name="gslam",
@@ -78,7 +79,6 @@ class Format(StrEnum):
     rosbag = "rosbag"
 
 
-METHOD_NAMES = ("gslam", "fastslam1", "fastslam2", "grid", "grid-hr")  # pipelines.run.runner.METHODS (a test checks)
 Method = StrEnum("Method", [(m.replace("-", "_"), m) for m in METHOD_NAMES])
 Vehicle = StrEnum("Vehicle", [(v, v) for v in VEHICLE_PRESETS])
 _DEFAULTS = FilterConfig()
@@ -374,9 +374,7 @@ def bench(
     quick: Annotated[bool, typer.Option("--quick", help="A small subset (N 2 M 4, N 8 M 10; one seed).")] = False,
     methods: Annotated[
         str,
-        typer.Option(
-            "--methods", help="Comma-separated: gslam, fastslam1, fastslam2, grid, grid-hr, or all (adds Table 4)."
-        ),
+        typer.Option("--methods", help=f"Comma-separated: {', '.join(METHOD_NAMES)}, or all (adds Table 4)."),
     ] = "gslam",
     seeds: Annotated[
         int | None, typer.Option("--seeds", min=1, help="Seeds per cell.", show_default="3; 1 with --quick")
@@ -417,7 +415,6 @@ def bench(
 
     from pipelines.bench.carpark import (
         FULL_GRID,
-        METHODS,
         QUICK_GRID,
         machine_description,
         markdown_table,
@@ -457,11 +454,12 @@ def bench(
     else:
         chosen = [m.strip() for m in methods.split(",") if m.strip()]
         if chosen == ["all"]:
-            chosen = list(METHODS)
-        missing = [m for m in chosen if m not in METHODS]
+            chosen = list(METHOD_NAMES)
+        missing = [m for m in chosen if m not in METHOD_NAMES]
         if missing or not chosen:
             fail(
-                f"--methods {methods}: unknown method(s) {', '.join(missing)}; choose from {', '.join(METHODS)} or all"
+                f"--methods {methods}: unknown method(s) {', '.join(missing)}; "
+                f"choose from {', '.join(METHOD_NAMES)} or all"
             )
         n_seeds = seeds if seeds is not None else (1 if quick else 3)
         grid = QUICK_GRID if quick else FULL_GRID

@@ -4,24 +4,28 @@ temporary file and moved into place on `finish()`."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 from gslam.filter import SlamFilter
 from mcaplog import channels as ch
 from mcaplog.mcapio import AtomicMcapWriter, to_ns
+from pipelines.outputs.writer import RunEnd, RunStart
 from pipelines.run.runner import Step
 
 
 class McapResultWriter:
     """Writes /slam/* channels (docs/CHANNELS.md) and the run's metadata."""
 
-    def __init__(self, path: Path, metadata: dict[str, dict[str, Any]], snapshot_every: int) -> None:
-        self.writer = AtomicMcapWriter(path)
-        for name, data in metadata.items():
-            self.writer.add_metadata(name, data)
+    def __init__(self, path: Path, snapshot_every: int) -> None:
+        self.path = Path(path)
         self.snapshot_every = snapshot_every
+        self.writer: AtomicMcapWriter | None = None
         self.last_ns = 0
         self.steps_written = 0
+
+    def start(self, run: RunStart) -> None:
+        self.writer = AtomicMcapWriter(self.path)
+        for name, data in run.metadata.items():
+            self.writer.add_metadata(name, data)
 
     def step(self, st: Step, flt: SlamFilter) -> None:
         r = st.result
@@ -54,7 +58,14 @@ class McapResultWriter:
             xy, p = flt.map_points(r.best)
             w.write_proto(ch.SLAM_MAP, ch.point_cloud(st.event.stamp_s, xy, p), ns)
 
-    def finish(self, flt: SlamFilter, result_meta: dict[str, Any]) -> Path:
+    def finish(self, end: RunEnd) -> Path:
+        """The navigation grid (if built), the final map and trajectory (and the baselines' landmarks or
+        grid), and the result's record; then the file is moved into place."""
+        flt = end.filter
+        if end.occupancy is not None:
+            occ = end.occupancy
+            msg = ch.navigation_grid(occ.t_s, occ.state, occ.origin_xy_m, occ.resolution_m)
+            self.writer.write_proto(ch.MAP_OCCUPANCY, msg, self.last_ns)
         best = flt.best_particle()
         times, traj = flt.best_trajectory()
         # An interruption can fall between the filter's step and its writing: publish the steps written.
@@ -81,8 +92,9 @@ class McapResultWriter:
         if hasattr(flt, "occupancy"):
             prob, origin, cell = flt.occupancy(best)
             self.writer.write_proto(ch.SLAM_GRID, ch.occupancy_grid(t_last, prob, origin, cell), ns)
-        self.writer.add_metadata("result", result_meta)
+        self.writer.add_metadata("result", end.result)
         return self.writer.finish()
 
     def abort(self) -> None:
-        self.writer.abort()
+        if self.writer is not None:
+            self.writer.abort()

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from pipelines.outputs import rerun_entities as entity
 from pipelines.outputs import writer_process
 
 
@@ -40,11 +41,11 @@ def blueprint():
 
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial2DView(name="map", origin="world"),
+            rrb.Spatial2DView(name="map", origin=entity.WORLD),
             rrb.Vertical(
-                rrb.TimeSeriesView(name="effective sample size", origin="stats/effective_sample_size"),
-                rrb.TimeSeriesView(name="map points", origin="stats/map_points"),
-                rrb.TimeSeriesView(name="step time [ms]", origin="stats/step_ms"),
+                rrb.TimeSeriesView(name="effective sample size", origin=entity.STATS_EFFECTIVE_SAMPLE_SIZE),
+                rrb.TimeSeriesView(name="map points", origin=entity.STATS_MAP_POINTS),
+                rrb.TimeSeriesView(name="step time [ms]", origin=entity.STATS_STEP_MS),
             ),
             column_shares=[3, 1],
         ),
@@ -63,13 +64,13 @@ class Recorder:
         self.rec = rr.RecordingStream(app_id)
         self.rec.save(str(self.path), default_blueprint=blueprint())
         # Colours and sizes of the per-step points, once for the whole recording.
-        self.rec.log("world/scan", rr.Points2D.from_fields(colors=[[255, 60, 200]], radii=0.06), static=True)
-        self.rec.log("world/particles", rr.Points2D.from_fields(colors=[[255, 140, 0]], radii=0.12), static=True)
+        self.rec.log(entity.SCAN, rr.Points2D.from_fields(colors=[[255, 60, 200]], radii=0.06), static=True)
+        self.rec.log(entity.PARTICLES, rr.Points2D.from_fields(colors=[[255, 140, 0]], radii=0.12), static=True)
         if gps is not None and len(gps):
-            self.rec.log("world/gps", rr.LineStrips2D([gps[:, 1:3]], colors=[[40, 200, 40]], radii=0.08), static=True)
+            self.rec.log(entity.GPS, rr.LineStrips2D([gps[:, 1:3]], colors=[[40, 200, 40]], radii=0.08), static=True)
         if landmarks is not None and len(landmarks):
             self.rec.log(
-                "world/landmarks",
+                entity.LANDMARKS,
                 rr.Points2D(
                     landmarks,
                     colors=[[255, 200, 0]],
@@ -80,38 +81,44 @@ class Recorder:
             )
 
     def _set_time(self, scan: int, time_s: float) -> None:
-        self.rec.set_time("scan", sequence=scan)
-        self.rec.set_time("time", duration=time_s)
+        self.rec.set_time(entity.SCAN_TIMELINE, sequence=scan)
+        self.rec.set_time(entity.TIME_TIMELINE, duration=time_s)
 
     def rows(self, scans: np.ndarray, times_s: np.ndarray, columns: dict[str, tuple[np.ndarray, np.ndarray]]) -> None:
         """One row per step on each path: `columns[path]` = (all the steps' points, points per step)."""
         rr = self.rr
-        idx = [rr.TimeColumn("scan", sequence=scans), rr.TimeColumn("time", duration=times_s)]
+        idx = [
+            rr.TimeColumn(entity.SCAN_TIMELINE, sequence=scans),
+            rr.TimeColumn(entity.TIME_TIMELINE, duration=times_s),
+        ]
         for path, (points, counts) in columns.items():
             self.rec.send_columns(path, indexes=idx, columns=rr.Points2D.columns(positions=points).partition(counts))
 
     def map(self, scan: int, time_s: float, xy: np.ndarray, p: np.ndarray) -> None:
         self._set_time(scan, time_s)
-        self.rec.log("world/map", self.rr.Points2D(xy, colors=probability_colors(p), radii=0.07))
+        self.rec.log(entity.MAP, self.rr.Points2D(xy, colors=probability_colors(p), radii=0.07))
 
     def finish(self, final: dict[str, Any]) -> None:
         """The per-step statistics, the final map and trajectories; then close the file."""
         rr, rec = self.rr, self.rec
         stats = final.get("stats")
         if stats is not None and len(stats["scan"]):
-            idx = [rr.TimeColumn("scan", sequence=stats["scan"]), rr.TimeColumn("time", duration=stats["time"])]
-            for name in ("effective_sample_size", "map_points", "step_ms"):
-                rec.send_columns(f"stats/{name}", indexes=idx, columns=rr.Scalars.columns(scalars=stats[name]))
+            idx = [
+                rr.TimeColumn(entity.SCAN_TIMELINE, sequence=stats["scan"]),
+                rr.TimeColumn(entity.TIME_TIMELINE, duration=stats["time"]),
+            ]
+            for name, path in entity.STATS.items():
+                rec.send_columns(path, indexes=idx, columns=rr.Scalars.columns(scalars=stats[name]))
             self.map(int(stats["scan"][-1]), float(stats["time"][-1]), *final["map"])
             if final.get("landmark_ellipses") is not None:
                 rec.log(
-                    "world/landmark_ellipses",
+                    entity.LANDMARK_ELLIPSES,
                     rr.LineStrips2D(final["landmark_ellipses"], colors=[[0, 200, 255]], radii=0.03),
                 )
             if final.get("occupancy_image") is not None:
-                rec.log("grid/occupancy", rr.Image(final["occupancy_image"]))
-            rec.log("world/trajectory", rr.LineStrips2D([final["trajectory"]], colors=[[230, 30, 30]], radii=0.1))
-            rec.log("world/online", rr.LineStrips2D([final["online"]], colors=[[60, 120, 255]], radii=0.05))
+                rec.log(entity.GRID_OCCUPANCY, rr.Image(final["occupancy_image"]))
+            rec.log(entity.TRAJECTORY, rr.LineStrips2D([final["trajectory"]], colors=[[230, 30, 30]], radii=0.1))
+            rec.log(entity.ONLINE, rr.LineStrips2D([final["online"]], colors=[[60, 120, 255]], radii=0.05))
         self.close()
 
     def close(self) -> None:

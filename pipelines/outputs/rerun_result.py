@@ -12,6 +12,8 @@ import numpy as np
 from gslam.filter import SlamFilter
 from gslam.scan import ScanGeometry, inverse_measure
 from mcaplog.tempfiles import temporary_for
+from pipelines.outputs import rerun_entities as entity
+from pipelines.outputs.writer import RunEnd, RunStart
 from pipelines.outputs.writer_process import WriterProcess, start_rerun_writer
 from pipelines.run.runner import Step
 
@@ -39,31 +41,34 @@ class RerunResultWriter:
     per step cost more than the filter on long logs)."""
 
     def __init__(
-        self,
-        path: Path,
-        geometry: ScanGeometry,
-        snapshot_every: int,
-        t0_s: float,
-        gps: np.ndarray | None,
-        landmarks: np.ndarray | None,
-        app_id: str = "gslam",
-        writer: WriterProcess | None = None,
+        self, path: Path, snapshot_every: int, app_id: str = "gslam", writer: WriterProcess | None = None
     ) -> None:
-        """`writer`: the writer process started beforehand by `writerproc.start_rerun_writer`, if any."""
+        """Starts the writer process, or takes `writer`, the one started beforehand by
+        `writer_process.start_rerun_writer` (so that its start-up overlaps the caller's)."""
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.tmp = temporary_for(self.path)
-        self.geometry = geometry
+        self.tmp: Path | None = None
         self.snapshot_every = snapshot_every
-        self.t0_s = t0_s
-        self.bearings = geometry.bearings_rad
+        self.app_id = app_id
         self.stats: dict[str, list[float]] = {k: [] for k in ("scan", "time", "ess", "map", "ms")}
         self.online: list[np.ndarray] = []
         self.pending_scans: list[tuple[np.ndarray, np.ndarray]] = []
         self.pending_particles: list[np.ndarray] = []
         self.finished = False
         self.writer = writer if writer is not None else start_rerun_writer(self.path)
-        self.writer.open((str(self.tmp.resolve()), app_id, gps, landmarks))
+
+    def start(self, run: RunStart) -> None:
+        log = run.log
+        self.open(log.geometry, log.start_s, log.gps_array(), log.landmarks_array())
+
+    def open(self, geometry: ScanGeometry, t0_s: float, gps: np.ndarray | None, landmarks: np.ndarray | None) -> None:
+        """Open the recording for scans of `geometry`, times counted from `t0_s`, with the static GPS track
+        and landmarks."""
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.tmp = temporary_for(self.path)
+        self.geometry = geometry
+        self.t0_s = t0_s
+        self.bearings = geometry.bearings_rad
+        self.writer.open((str(self.tmp.resolve()), self.app_id, gps, landmarks))
 
     # --- the steps ----------------------------------------------------------------------------
     def step(self, st: Step, flt: SlamFilter) -> None:
@@ -97,7 +102,7 @@ class RerunResultWriter:
         if n == 0:
             return
         columns = {}
-        for path, rows in (("world/scan", self._scan_end_points()), ("world/particles", self.pending_particles)):
+        for path, rows in ((entity.SCAN, self._scan_end_points()), (entity.PARTICLES, self.pending_particles)):
             columns[path] = (np.concatenate(rows), np.array([len(a) for a in rows]))
         scans = np.asarray(self.stats["scan"][-n:])
         times = np.asarray(self.stats["time"][-n:], dtype=float)
@@ -113,9 +118,12 @@ class RerunResultWriter:
         pts = inverse_measure(poses[row], ranges[row, beam], self.bearings[beam])
         return np.split(pts, np.cumsum(ok.sum(axis=1))[:-1])
 
-    def finish(self, flt: SlamFilter) -> Path:
+    def finish(self, end: RunEnd) -> Path:
+        """Send the rest and the final map and trajectories; the writer process's memory and processor time
+        go to the result's record."""
         if self.finished:
             return self.path
+        flt = end.filter
         self._flush()
         final: dict[str, Any] = {}
         if self.stats["scan"]:
@@ -142,10 +150,13 @@ class RerunResultWriter:
         self.writer.finish(("finish", final))
         os.replace(self.tmp, self.path)
         self.finished = True
+        end.result["peak_rss_mb_rrd_writer"] = self.writer.peak_rss_mb
+        end.result["cpu_s_rrd_writer"] = self.writer.cpu_s
         return self.path
 
     def abort(self) -> None:
         try:
             self.writer.abort()
         finally:
-            Path(self.tmp).unlink(missing_ok=True)
+            if self.tmp is not None:
+                self.tmp.unlink(missing_ok=True)

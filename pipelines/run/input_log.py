@@ -133,6 +133,13 @@ class InputLog:
         rows = list(converted(self.mcap, [ch.GPS], lambda m: [m.t_s, m.value.pose.position.x, m.value.pose.position.y]))
         return np.array(rows) if rows else None
 
+    def landmarks_array(self) -> np.ndarray | None:
+        """The surveyed (or simulated) landmarks (K, 2), where the log has them."""
+        msgs = self.read_all(ch.LANDMARKS_TRUTH)
+        if not msgs:
+            return None
+        return np.column_stack([msgs[0].value["x_m"], msgs[0].value["y_m"]])
+
     def head_controls_and_gps(self, seconds: float) -> tuple[np.ndarray, np.ndarray]:
         """Ackermann controls and GPS fixes of the first `seconds` of the log (for initialisation)."""
         controls, gps = [], []

@@ -4,26 +4,22 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from gslam.baselines.fastslam import FastSlamConfig, FastSlamFilter
-from gslam.baselines.grid_rbpf import GridConfig, GridSlam
 from gslam.config import FilterConfig, check_fields
-from gslam.filter import GSlamFilter, SlamFilter, StepResult
+from gslam.filter import StepResult
 from gslam.initialisation import fit_initial_heading
 from gslam.motion import apply_odometry, integrate_ackermann, odometry_delta
 from gslam.scan import Scan, ScanGeometry
 from gslam.vehicle import VEHICLE_PRESETS, AckermannVehicle, vehicle_preset
 from pipelines.errors import InputError
+from pipelines.methods import make_filter, method
 from pipelines.run.input_log import ControlEvent, GpsEvent, InputLog, OdomEvent, ScanEvent
 from pipelines.run.mount import BaseFrameView
-
-METHODS = ("gslam", "fastslam1", "fastslam2", "grid", "grid-hr")
 
 
 @dataclass
@@ -32,8 +28,8 @@ class RunConfig:
 
     filter: FilterConfig = field(default_factory=FilterConfig)
     method: str = "gslam"
-    """gslam, or a baseline: fastslam1, fastslam2 (landmarks: poles, from intensity or geometry), grid
-    (about 3000 cells) or grid-hr (about 48000 cells) occupancy RBPF."""
+    """gslam, or a baseline (`pipelines.methods`): fastslam1, fastslam2 (landmarks: poles, from intensity or
+    geometry), grid (about 3000 cells) or grid-hr (about 48000 cells) occupancy RBPF."""
     vehicle: str | None = None
     """Vehicle preset for Ackermann logs (default: the one named in the input's metadata)."""
     init_heading_window_s: float = 5.0
@@ -79,8 +75,7 @@ class RunConfig:
         if not isinstance(self.filter, FilterConfig):
             raise ValueError(f"filter must be a FilterConfig, got {type(self.filter).__name__}")
         check_fields(self, self.LIMITS, skip=("filter",))
-        if self.method not in METHODS:
-            raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
+        method(self.method)  # a registered method (pipelines.methods)
         if self.vehicle is not None and self.vehicle not in VEHICLE_PRESETS:
             raise ValueError(f"vehicle must be one of {', '.join(VEHICLE_PRESETS)}, got {self.vehicle!r}")
 
@@ -96,39 +91,6 @@ class Step:
     step_ms: float
     laser_pose: np.ndarray
     """The best particle's laser pose (where the scan was taken)."""
-
-
-def make_filter(cfg: RunConfig, initial_pose: np.ndarray, self_return_range_m: float = 0.0) -> SlamFilter:
-    """The SLAM method `cfg.method`, sharing the particle count, seed and range limit of cfg.filter (or,
-    when that is None, the input's `self_return_range_m`)."""
-    min_range_m = cfg.filter.min_range_m if cfg.filter.min_range_m is not None else self_return_range_m
-    if cfg.method == "gslam":
-        threads = cfg.threads or os.cpu_count() or 1
-        import numba
-
-        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
-        return GSlamFilter(cfg.filter, initial_pose, threads=threads)
-    if cfg.method in ("fastslam1", "fastslam2"):
-        fs = FastSlamConfig(
-            particles=cfg.filter.particles,
-            seed=cfg.filter.seed,
-            version=int(cfg.method[-1]),
-            resample_threshold=cfg.filter.resample_threshold,
-        )
-        return FastSlamFilter(fs, initial_pose, min_range_m)
-    if cfg.method in ("grid", "grid-hr"):
-        cells = cfg.grid_cells or (3000 if cfg.method == "grid" else 48000)
-        return GridSlam(
-            GridConfig(
-                particles=cfg.filter.particles,
-                seed=cfg.filter.seed,
-                cells=cells,
-                min_range_m=min_range_m,
-                resample_threshold=cfg.filter.resample_threshold,
-            ),
-            initial_pose,
-        )
-    raise ValueError(f"unknown method {cfg.method!r}; choose one of {', '.join(METHODS)}")
 
 
 class SlamRunner:

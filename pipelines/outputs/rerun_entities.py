@@ -1,0 +1,38 @@
+"""The Rerun recording's entity paths and timelines, in one place (as `mcaplog.channels` is for the MCAP
+topics): the writer process logs to them, the blueprint shows them, the tests read them."""
+
+SCAN_TIMELINE = "scan"
+"""Sequence timeline: the scan's index in the log."""
+TIME_TIMELINE = "time"
+"""Duration timeline: seconds since the log's start."""
+
+WORLD = "world"
+"""The map view's origin: everything below is in the map frame."""
+MAP = "world/map"
+"""The best particle's map points, coloured by probability (snapshots, and the final map)."""
+SCAN = "world/scan"
+"""The end points of the scan's returns, from the best particle's laser pose (one row per step)."""
+PARTICLES = "world/particles"
+"""The particles' positions (one row per step)."""
+GPS = "world/gps"
+"""The GPS track (static), where the log has one."""
+LANDMARKS = "world/landmarks"
+"""Surveyed poles or simulated landmarks (static), where the log has them."""
+LANDMARK_ELLIPSES = "world/landmark_ellipses"
+"""FastSLAM: the 3-sigma ellipses of the best particle's landmarks (final)."""
+TRAJECTORY = "world/trajectory"
+"""The best particle's final trajectory."""
+ONLINE = "world/online"
+"""The online estimate: the best particle's pose at each step."""
+GRID_OCCUPANCY = "grid/occupancy"
+"""The grid baselines' occupancy image (final)."""
+
+STATS_EFFECTIVE_SAMPLE_SIZE = "stats/effective_sample_size"
+STATS_MAP_POINTS = "stats/map_points"
+STATS_STEP_MS = "stats/step_ms"
+STATS = {
+    "effective_sample_size": STATS_EFFECTIVE_SAMPLE_SIZE,
+    "map_points": STATS_MAP_POINTS,
+    "step_ms": STATS_STEP_MS,
+}
+"""The per-step statistics by name (their time series)."""

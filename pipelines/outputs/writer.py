@@ -1,0 +1,64 @@
+"""The interface of a result writer: `gslam process` holds a list of them and drives each the same way.
+
+`start` once the run can begin (the input is open, the filter built), `step` after every scan,
+`finish` at the end (also after an interruption: the result then holds the steps done), or `abort` when
+the run cannot be completed: the writer then leaves nothing at its final path. Every writer writes to a
+temporary file and renames it into place on `finish`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from gslam.filter import SlamFilter
+    from pipelines.run.input_log import InputLog
+    from pipelines.run.runner import Step
+
+
+@dataclass
+class RunStart:
+    """What a writer learns when the run starts."""
+
+    log: InputLog
+    metadata: dict[str, dict[str, Any]]
+    """The result's metadata: the software and command, the configuration, the input, the initialisation."""
+
+
+@dataclass
+class OccupancyMap:
+    """The final trinary navigation grid (`pipelines.outputs.navigation_map`), when the run builds one."""
+
+    t_s: float
+    state: np.ndarray
+    origin_xy_m: np.ndarray
+    resolution_m: float
+
+
+@dataclass
+class RunEnd:
+    """What a writer is given when the run ends."""
+
+    filter: SlamFilter
+    """The filter as the outputs see it (from the base where the laser is mounted off it)."""
+    result: dict[str, Any]
+    """The result's record (steps, times, memory, interrupted); a writer may add its own figures to it
+    before the writers after it finish."""
+    occupancy: OccupancyMap | None = None
+    extras: dict[str, Any] = field(default_factory=dict)
+
+
+class ResultWriter(Protocol):
+    path: Path
+
+    def start(self, run: RunStart) -> None: ...
+
+    def step(self, st: Step, flt: SlamFilter) -> None: ...
+
+    def finish(self, end: RunEnd) -> Path: ...
+
+    def abort(self) -> None: ...
