@@ -48,7 +48,7 @@ class FilterConfig:
     bearing_sigma_rad: float = math.radians(0.1)
     """Bearing noise of the laser (sd of the draw of new points, R). A beam's direction is known to the
     encoder's precision; a wide draw puts new points beside the surface wherever the beam meets it at an
-    angle (0.25 deg before: intel 0.052 -> 0.048 m, docs/CHOICES.md)."""
+    angle (docs/CHOICES.md)."""
     hit_sigma_m: float = 0.20
     """Width of the range term of q for existing points (pose uncertainty included)."""
     hit_ratio: float = 3.0
@@ -74,8 +74,7 @@ class FilterConfig:
     """Density control: keep at most this many points (the most probable) per cell; 0 = off."""
     cell_size_m: float = 0.1
     """Cell size of the density control (and of the cell-mean prior). 0.1 m keeps about ten points per
-    metre of wall, dense enough for the matcher to find a point near every return (0.25 m with two
-    points per cell: mit-csail's first 400 scans 0.101 m against 0.046 m; docs/CHOICES.md)."""
+    metre of wall, dense enough for the matcher to find a point near every return (docs/CHOICES.md)."""
 
     # Open point 4: the importance weight.
     weighting: Weighting = "matched_field"
@@ -122,16 +121,14 @@ class FilterConfig:
     """Angular part of the score's width for a return scored point to point (no line found, see
     match_line_pair_m): sigma^2 = match_sigma_m^2 + (r match_sigma_rad)^2, the spacing of the map's
     points along a surface seen at range r. None: the sensor's angle between beams (from the input).
-    0 (default): one width for every return (the sensor's angle measured: intel 0.046 m against 0.043,
-    docs/CHOICES.md)."""
+    0 (default): one width for every return (the sensor's angle measured worse, docs/CHOICES.md)."""
     match_cell_m: float = 0.05
     """Cell of the raster the matcher builds from each particle's map points near the scan; a cell
     keeps the mean of its points (GMapping's map resolution, delta 0.05 m)."""
     match_kernel: int = 1
     """Cells searched either side of an end point's cell for the map (GMapping's kernelSize 1: within
-    0.05 to 0.1 m). With point-to-point distances it took 2 cells (the spacing of the map's points) for
-    mit-csail to close its loops at every seed; with point-to-line distances 1 cell holds them and is
-    1.4x faster (docs/CHOICES.md)."""
+    0.05 to 0.1 m). Point-to-point distances needed 2 cells (the spacing of the map's points) to close
+    loops; with point-to-line distances 1 cell holds them, at less cost (docs/CHOICES.md)."""
     match_line_pair_m: float = 0.2
     """Point to line: when the two nearest cell means found for a return lie at most this far apart
     (neighbouring samples of one surface: twice the map's point spacing, cell_size_m), the return's
@@ -165,9 +162,7 @@ class FilterConfig:
     min_travel_m: float = 0.5
     """Travel between updates. G-SLAM estimates a surface from the points it draws around the returns of
     the scans it integrates (one kept per cell), so it gains more from integrating scans more often
-    than a grid whose cells average every hit: 0.5 m against GMapping's 1 m took intel from 0.043 to
-    0.037 m, mit-csail from 0.054 to 0.052, the Car Park from 0.237 to 0.197 m (N 8), for 1.5x the
-    updates (docs/CHOICES.md)."""
+    than a grid whose cells average every hit: half GMapping's 1 m (docs/CHOICES.md)."""
     min_turn_rad: float = 0.5
     """Turn between updates (GMapping's angularUpdate)."""
     fill_skipped: FillSkipped = "odometry"

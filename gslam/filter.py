@@ -173,7 +173,7 @@ class GSlamFilter:
 
     def _match_and_weigh(self, scan: Scan, layout: tuple[np.ndarray, ...]) -> tuple[int, np.ndarray]:
         """Open point 6: refine every particle's motion-model sample by matching the scan against its own
-        map (`fieldmatch.match_and_weigh`), then sample around the match; and the scan's log-likelihood
+        map (`scanmatch.match_and_weigh`), then sample around the match; and the scan's log-likelihood
         at the resulting pose (the "matched_field" weight). Returns (particles matched, log-likelihoods)."""
         cfg, n = self.cfg, self.cfg.particles
         if cfg.proposal != "scan_match" and cfg.weighting != "matched_field":

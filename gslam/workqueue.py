@@ -4,9 +4,7 @@ numba's `prange` hands each thread a fixed share of the iterations; a worker who
 moment (the Rerun writer's process, another program on a shared machine) then holds up the whole loop
 while the others wait. The compiled particle loops instead start one iteration per worker, and each
 worker takes particle indices from a shared counter (`next_index`, an atomic fetch-and-add) until none
-is left. On a state of intel at scan 12 000 (N 30, 2 threads) the matcher took 13.4 ms with a fixed
-share and 9.6 ms this way while another process kept one core busy; the same (6.8 ms) on an idle
-machine. Every particle's result depends only on its own inputs (each
+is left (measured in docs/SPEED.md). Every particle's result depends only on its own inputs (each
 worker's scratch arrays are reset after every particle), so the results do not depend on which worker
 took which particle, nor on the number of threads.
 """

@@ -29,7 +29,6 @@ from .tf import FrameTree, PlanarMount, frame_name, planar_mount, yaw_of_quatern
 
 LASER_TYPE = "sensor_msgs/msg/LaserScan"
 ODOM_TYPE = "nav_msgs/msg/Odometry"
-TF_TYPE = "tf2_msgs/msg/TFMessage"
 TF_TOPIC = "/tf"
 TF_STATIC_TOPIC = "/tf_static"
 BAG_SUFFIXES = (".bag", ".db3", ".mcap")

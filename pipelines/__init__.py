@@ -1,4 +1,8 @@
-"""Pipelines: stream MCAP logs through the filter core and write MCAP and Rerun results."""
+"""Pipelines: stream MCAP logs through the filter core and write MCAP and Rerun results.
+
+The main path is `process.process` (`gslam process`); `methods` lists the SLAM methods. Below: `run`
+(the input and the runner), `outputs` (the writers), `evaluation`, `bench`, `cli`, `demo`
+(docs/ARCHITECTURE.md)."""
 
 import os
 

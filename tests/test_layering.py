@@ -43,3 +43,39 @@ def test_only_the_command_line_reaches_into_ingest():
     )
     allowed = {"cli/app.py", "cli/errors.py", "demo/run.py", "bench/sweep.py", "bench/carpark.py", "bench/suites.py"}
     assert set(users) <= {f"pipelines/{name}" for name in allowed}, users
+
+
+# Inside pipelines, each room imports only the rooms below it (the command line at the top).
+PIPELINE_ROOMS = ["cli", "bench", "demo", "process", "outputs", "evaluation", "run", "methods", "errors"]
+
+
+def _runtime_imports(path: Path) -> set[str]:
+    """The pipelines rooms a module imports at run time (imports under `if TYPE_CHECKING:` left out)."""
+    tree = ast.parse(path.read_text())
+    typing_only = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and getattr(node.test, "id", None) == "TYPE_CHECKING":
+            typing_only |= {id(n) for n in ast.walk(node)}
+    found = set()
+    for node in ast.walk(tree):
+        if id(node) in typing_only:
+            continue
+        names = [a.name for a in node.names] if isinstance(node, ast.Import) else []
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names = [node.module]
+        found |= {n.split(".")[1] for n in names if n.startswith("pipelines.")}
+    return found
+
+
+def test_pipeline_rooms_import_only_the_rooms_below_them():
+    rank = {room: i for i, room in enumerate(PIPELINE_ROOMS)}
+    upward = {}
+    for p in sorted((ROOT / "pipelines").rglob("*.py")):
+        room = p.relative_to(ROOT / "pipelines").parts[0].removesuffix(".py")
+        if room == "__init__":
+            continue
+        assert room in rank, f"{p}: a room of pipelines/ not in PIPELINE_ROOMS"
+        bad = sorted(r for r in _runtime_imports(p) if r != room and rank[r] < rank[room])
+        if bad:
+            upward[str(p.relative_to(ROOT))] = bad
+    assert not upward, upward

@@ -274,8 +274,8 @@ class UpdateWorkspace:
     the new maps are written to, reused from one update to the one after next.
 
     Every update writes all the maps anew (tens of MB on a long indoor log). A fresh buffer each time is
-    fresh memory from the system, paid in page faults as it is first written (intel at N 30: the update
-    took 4.9 ms instead of 3.4); so the buffer of the update before the last is written again, once
+    fresh memory from the system, paid in page faults as it is first written (docs/SPEED.md); so the
+    buffer of the update before the last is written again, once
     nothing but this workspace refers to it (`release`, `take`): maps a caller still holds are never
     overwritten."""
 

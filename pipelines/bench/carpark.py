@@ -136,6 +136,7 @@ def _mean_sd(values: list[float]) -> str:
 
 
 def markdown_table(results: list[CellResult], seeds: int, command: str, wall_s: float) -> str:
+    d = FilterConfig()  # the schedule the runs used, as it is now
     lines = [
         "## Car Park log: the paper's Tables 3 and 4",
         "",
@@ -148,7 +149,8 @@ def markdown_table(results: list[CellResult], seeds: int, command: str, wall_s: 
         "  start (paper's metric); mean ± standard deviation over seeds. Online: the filtered estimate.",
         "- ms/step: wall time of a scan step, filter alone (median and mean) and end to end (median, with MCAP",
         "  and Rerun writing); per-run figures, then their median over seeds. With the default update schedule",
-        "  (`travel`: the map and weights are updated after 1 m or 0.5 rad, other scans only predict) the",
+        f"  (`travel`: the map and weights are updated after {d.min_travel_m:g} m or {d.min_turn_rad:g} rad, other "
+        "scans only predict) the",
         "  median is a prediction step and the mean carries the updates. RTF: log duration / processing time.",
         "",
         "### Table 3: G-SLAM, N particles x M new points per observation",

@@ -256,8 +256,7 @@ def process(
     from pipelines.outputs.writer_process import start_rerun_writer
 
     rrd_path = None if no_rrd else (rrd or output.with_suffix(".rrd"))
-    # The Rerun writer's process starts before the filter's modules are imported (numpy, numba: ~0.4 s of
-    # one thread), so that its own start-up (importing rerun) runs beside them on the other core.
+    # Started first, before numpy and numba are imported: see writer_process.start_rerun_writer.
     rrd_writer = None if rrd_path is None else start_rerun_writer(rrd_path)
     try:
         from pipelines.process import process as run_process
@@ -541,10 +540,10 @@ def sweep(
 
 
 def run() -> None:
-    """The `gslam` console script: the typer app between two `compiled.freeze_heap`: one before the
-    command (the garbage collector's full passes while numba loads the compiled kernels no longer walk
-    the modules imported so far: ~40 ms), one on the way out, whatever the exit (the interpreter's
-    teardown no longer walks numba's objects: ~0.25 s)."""
+    """The `gslam` console script: the typer app between two `startup.freeze_heap`: one before the
+    command (the garbage collector's full passes while numba loads the compiled kernels then skip the
+    modules imported so far), one on the way out, whatever the exit (the interpreter's teardown then
+    skips numba's objects); docs/SPEED.md has what each saves."""
     from pipelines.run.startup import freeze_heap
 
     freeze_heap()  # the modules imported so far

@@ -140,12 +140,11 @@ class _NoPandas(importlib.abc.MetaPathFinder):
 
 
 def main() -> int:
-    # pyarrow (under rerun) imports pandas, when installed, at its first array: 0.5 s and 40 MB that the
+    # pyarrow (under rerun) imports pandas, when installed, at its first array: time and memory the
     # recording never uses. Refusing the import here is what pyarrow sees when pandas is not installed.
     sys.meta_path.insert(0, _NoPandas())
-    # Imported now, not at "open": the caller may start this process before it knows what to open, so
-    # that this import runs while the caller starts up (`writer_process.start_rerun_writer`). A failure here
-    # is left for "open" to report.
+    # Imported now, not at "open" (`writer_process.start_rerun_writer` says why). A failure here is left
+    # for "open" to report.
     try:
         import rerun  # noqa: F401
         import rerun.blueprint  # noqa: F401

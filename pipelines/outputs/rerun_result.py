@@ -44,7 +44,7 @@ class RerunResultWriter:
         self, path: Path, snapshot_every: int, app_id: str = "gslam", writer: WriterProcess | None = None
     ) -> None:
         """Starts the writer process, or takes `writer`, the one started beforehand by
-        `writer_process.start_rerun_writer` (so that its start-up overlaps the caller's)."""
+        `writer_process.start_rerun_writer`."""
         self.path = Path(path)
         self.tmp: Path | None = None
         self.snapshot_every = snapshot_every

@@ -121,9 +121,12 @@ class WriterProcess:
 
 
 def start_rerun_writer(path: Path) -> WriterProcess:
-    """The Rerun recording's writer process (`pipelines.outputs.rerun_process`) for `path`, started before it is
-    opened (`RerunResultWriter(..., writer=...)`): it imports rerun (~0.5 s of processor time) while its
-    caller starts up, on the core the caller's one thread leaves idle."""
+    """The Rerun recording's writer process (`pipelines.outputs.rerun_process`) for `path`, started before
+    the recording is opened (`RerunResultWriter(path, ..., writer=...)`).
+
+    This is the one place that says why it starts early: `gslam process` starts it before it imports
+    numpy and numba, so that the writer's own start-up (importing rerun and pyarrow) runs on the core
+    that the filter's one thread leaves idle until its first update (figures in docs/SPEED.md)."""
     return WriterProcess("pipelines.outputs.rerun_process", "the Rerun recording", path)
 
 

@@ -7,6 +7,7 @@ import math
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -50,16 +51,9 @@ class RunConfig:
     occupancy_resolution_m: float = 0.05
     """Cell size of that grid [m]."""
 
-    RUN_OPTIONS = (
-        "method",
-        "vehicle",
-        "init_heading_window_s",
-        "map_snapshot_every",
-        "max_scans",
-        "laser_yaw_offset_rad",
-        "occupancy",
-        "occupancy_resolution_m",
-    )
+    RUN_OPTIONS: ClassVar[tuple[str, ...]] = ()
+    """The run options (every field but `filter`): what a TOML file may set besides [filter], and what a
+    result records (set below, from the fields, so that a new option cannot be left out)."""
     LIMITS = {
         "init_heading_window_s": (0.0, 3600.0, False),
         "max_scans": (1, math.inf, True),
@@ -81,6 +75,9 @@ class RunConfig:
 
     def as_dict(self) -> dict:
         return {"filter": self.filter.as_dict(), **{k: getattr(self, k) for k in self.RUN_OPTIONS}}
+
+
+RunConfig.RUN_OPTIONS = tuple(f.name for f in dataclasses.fields(RunConfig) if f.name != "filter")
 
 
 @dataclass

@@ -9,8 +9,8 @@ import sys
 def skip_blas_probe() -> None:
     """Spare numba's BLAS probe: at its first compilation or cache load numba imports its NumPy
     registries, whose `numba.np.arraymath` imports `scipy.linalg.cython_blas` to see whether `np.dot`
-    and `np.linalg` can be compiled. That import loads `scipy.linalg`, 0.25 s of a run's start on this
-    machine, and no kernel of gslam uses linear algebra. The registries are imported here with the
+    and `np.linalg` can be compiled. That import loads `scipy.linalg`, a noticeable part of a run's start
+    (docs/SPEED.md), and no kernel of gslam uses linear algebra. The registries are imported here with the
     probe's module marked missing, then the mark is removed, so `scipy.linalg` imports as usual later.
 
     Called by the CLI's commands, not on `import gslam`: in a process of the user's own, their compiled
@@ -28,9 +28,8 @@ def skip_blas_probe() -> None:
 def freeze_heap() -> None:
     """Leave every object alive now out of the cyclic garbage collector (`gc.freeze`), for a process
     about to exit. Numba's compiler keeps hundreds of thousands of objects (its typing and lowering
-    registries, loaded at the first dispatch of a compiled kernel); the interpreter's teardown collects
-    them, which took ~0.25 s of every `gslam process` run on this machine (a Car Park run at N 8: 2.55 s
-    -> 2.31 s, medians of 7 alternating runs). Frozen objects are still freed by their reference counts,
+    registries, loaded at the first dispatch of a compiled kernel); the interpreter's teardown would walk
+    them all (docs/SPEED.md has the cost). Frozen objects are still freed by their reference counts,
     and `atexit` handlers, `weakref.finalize` callbacks and file flushes run as before: only the
     collector's walk over them is skipped.
 

@@ -1,0 +1,30 @@
+"""Run options: every one may come from a TOML file and is recorded in the result's configuration."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from pipelines.run.options import run_config
+from pipelines.run.runner import RunConfig
+
+
+def test_every_run_option_is_known_to_toml_and_recorded(tmp_path):
+    config = tmp_path / "c.toml"
+    config.write_text('method = "grid"\ngrid_cells = 500\nthreads = 1\n[filter]\nparticles = 4\n')
+    cfg = run_config(config, [], [])
+    assert (cfg.method, cfg.grid_cells, cfg.threads, cfg.filter.particles) == ("grid", 500, 1, 4)
+    recorded = cfg.as_dict()
+    assert recorded["grid_cells"] == 500  # was refused in a TOML, and not recorded from --grid-cells
+    assert set(recorded) == {f.name for f in dataclasses.fields(RunConfig)}
+    assert set(RunConfig.RUN_OPTIONS) == set(recorded) - {"filter"}
+
+
+def test_the_carpark_table_states_the_schedule_the_runs_used():
+    from gslam.config import FilterConfig
+    from pipelines.bench.carpark import CellResult, markdown_table
+
+    cell = CellResult(8, 10, errors_m=[0.2], online_errors_m=[0.2], filter_ms=[1.0], filter_mean_ms=[1.0])
+    cell.end_to_end_ms, cell.rtf, cell.map_points = [1.0], [50.0], [5000]
+    text = " ".join(markdown_table([cell], 1, "gslam bench", 1.0).split())
+    d = FilterConfig()
+    assert f"updated after {d.min_travel_m:g} m or {d.min_turn_rad:g} rad" in text
