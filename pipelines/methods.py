@@ -76,12 +76,19 @@ def _grid(default_cells: int) -> Builder:
     return build
 
 
+def _odometry(cfg: RunConfig, initial_pose: np.ndarray, min_range_m: float) -> SlamFilter:
+    from gslam.baselines.dead_reckoning import DeadReckoning
+
+    return DeadReckoning(initial_pose)
+
+
 REGISTRY: tuple[Method, ...] = (
     Method("gslam", "G-SLAM: point maps (the filter of the paper)", _gslam, takes_points=True),
     Method("fastslam1", "FastSLAM 1.0 on pole landmarks", _fastslam(1)),
     Method("fastslam2", "FastSLAM 2.0 on pole landmarks", _fastslam(2)),
     Method("grid", "grid-map RBPF, about 3000 cells (the paper's)", _grid(3000)),
     Method("grid-hr", "grid-map RBPF, about 48000 cells (the paper's high resolution)", _grid(48000)),
+    Method("odometry", "odometry alone: the noise-free motion model, no map (the yardstick)", _odometry),
 )
 METHODS: dict[str, Method] = {m.name: m for m in REGISTRY}
 NAMES: tuple[str, ...] = tuple(METHODS)

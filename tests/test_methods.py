@@ -18,7 +18,7 @@ def test_every_reader_offers_exactly_the_registry():
 
     assert tuple(m.value for m in CliMethod) == NAMES
     assert tuple(SWEEP_METHODS) == NAMES
-    assert NAMES == ("gslam", "fastslam1", "fastslam2", "grid", "grid-hr")
+    assert NAMES == ("gslam", "fastslam1", "fastslam2", "grid", "grid-hr", "odometry")
 
 
 def test_the_runner_refuses_a_method_not_registered():

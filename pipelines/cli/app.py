@@ -392,7 +392,8 @@ def bench(
         typer.Option(
             "--suite",
             help="carpark: the paper's Tables 3 and 4; freiburg: relations error on the Freiburg indoor logs "
-            "(N 30, seeds 0..SEEDS-1); speed: whole-run wall time, ms per update and peak memory (median of 3).",
+            "(N 30, seeds 0..SEEDS-1); speed: whole-run wall time, ms per update and peak memory (median of 3); "
+            "robustness: the corpus (Freiburg, Radish with corrupted odometry) beside GMapping and odometry.",
         ),
     ] = "carpark",
     freiburg: Annotated[
@@ -402,10 +403,17 @@ def bench(
         Path,
         typer.Option(
             "--gmapping",
-            help="GMapping harness directory (speed suite): GMapping runs beside gslam on the Freiburg logs; "
-            "when it is absent the table gives GMapping's reference times instead.",
+            help="GMapping harness directory (speed and robustness suites): GMapping runs beside gslam; "
+            "when it is absent the speed table gives GMapping's reference times instead.",
         ),
     ] = Path("../shared/tools/gmapping"),
+    datasets: Annotated[
+        Path, typer.Option("--datasets", help="The datasets directory (robustness suite: the corpus).")
+    ] = Path("../shared/datasets"),
+    logs: Annotated[
+        str | None,
+        typer.Option("--logs", help="Robustness suite: comma-separated corpus logs to run (default: all)."),
+    ] = None,
 ) -> None:
     """Benchmarks into docs/BENCHMARKS.md: the paper's Tables 3 and 4 on the Car Park log (beside the paper's
     figures), the Freiburg indoor logs (beside GMapping), and speed."""
@@ -422,13 +430,30 @@ def bench(
     )
     from pipelines.bench.suites import freiburg_section, replace_section, run_suite, speed_section
 
-    if suite not in ("carpark", "freiburg", "speed"):
-        fail(f"--suite {suite}: expected carpark, freiburg or speed")
+    if suite not in ("carpark", "freiburg", "speed", "robustness"):
+        fail(f"--suite {suite}: expected carpark, freiburg, speed or robustness")
     if output is not None:
-        check_outputs({"-o": output}, {"--data": data, "--freiburg": freiburg})
+        check_outputs({"-o": output}, {"--data": data, "--freiburg": freiburg, "--datasets": datasets})
     command = invocation(ctx)
     t0 = time.perf_counter()
-    if suite != "carpark":
+    if suite == "robustness":
+        from pipelines.bench.corpus import FREIBURG_LOGS, RADISH_LOGS
+        from pipelines.bench.robustness import robustness_section, run_robustness
+
+        only = [name.strip() for name in logs.split(",") if name.strip()] if logs else None
+        unknown = sorted(set(only or []) - set(FREIBURG_LOGS + RADISH_LOGS))
+        if unknown:
+            fail(f"--logs: unknown log(s) {', '.join(unknown)}; the corpus: {', '.join(FREIBURG_LOGS + RADISH_LOGS)}")
+        if not datasets.is_dir():
+            fail(f"--datasets {datasets}: no such directory")
+        harness = gmapping if (gmapping / "run.sh").exists() else None
+        if harness is None:
+            typer.echo(f"--gmapping {gmapping}: no run.sh there; GMapping is left out", err=True)
+        results = run_robustness(
+            datasets, list(range(seeds or 3)), lambda s: typer.echo(s, err=True), harness, only=only
+        )
+        text = robustness_section(results, command, machine_description(), versions(), 30, 0)
+    elif suite != "carpark":
         logs = [freiburg / "mit-csail.clf.gz", freiburg / "intel.clf.gz"]
         for log in logs:
             if not log.exists():
