@@ -33,6 +33,7 @@ TF_TOPIC = "/tf"
 TF_STATIC_TOPIC = "/tf_static"
 BAG_SUFFIXES = (".bag", ".db3", ".mcap")
 MOUNT_SEARCH_S = 5.0
+MAX_BEAMS = 100_000
 """Seconds of /tf read at the start of the bag for transforms missing from /tf_static."""
 MAX_ODOM_GAP_S = 1.0
 """Scans between two odometry samples further apart than this are dropped (the motion is unknown)."""
@@ -150,6 +151,13 @@ class BagStream:
             # -(angle of beam n-1-k), so the first bearing is minus the last angle, the step unchanged.
             self.start_angle_rad = -(g.angle_min_rad + (g.beam_count - 1) * g.angle_increment_rad)
         self.expected_records = 2 * self.scan.count
+        self.geometry_counts: dict[tuple[int, float, float], int] = {}
+        """Scans by beam geometry (beam count, angle_min, angle_increment), as they are read."""
+        self.range_max_counts: dict[float, int] = {}
+        self.invalid_readings = 0
+        """Readings that are NaN or below their message's range_min (no observation)."""
+        self.blind_readings = 0
+        """No-return readings of messages whose range_max is shorter than the first scan's."""
 
     # -- opening -----------------------------------------------------------------------------------
     def _storage(self, reader) -> str:
@@ -239,15 +247,8 @@ class BagStream:
                 f"{where}: angle_increment {inc:.6g} rad disagrees with the ranges: angle_min {a0:.6g} to "
                 f"angle_max {a1:.6g} rad makes {implied:.1f} beams, the message has {n} ranges"
             )
-        if index and (
-            n != geom.beam_count
-            or abs(a0 - geom.angle_min_rad) > ANGLE_TOLERANCE_RAD
-            or abs(inc - geom.angle_increment_rad) > ANGLE_TOLERANCE_RAD
-        ):
-            raise IngestError(
-                f"{where}: {n} beams from {a0:.6g} rad by {inc:.6g} rad, but the first scan has "
-                f"{geom.beam_count} beams from {geom.angle_min_rad:.6g} rad by {geom.angle_increment_rad:.6g} rad"
-            )
+        if n > MAX_BEAMS:
+            raise IngestError(f"{where}: {n} ranges; more than {MAX_BEAMS} beams is not a planar laser scan")
 
     def _odometry_base(self, reader) -> str:
         if self.odom.count == 0:
@@ -396,18 +397,36 @@ class BagStream:
             ) from None
 
     def _scan_record(self, msg, t_ns: int) -> ScanRecord:
+        """The scan with its own beams (each message's angle_min, angle_increment and count: some lasers
+        interleave several geometries) and its own range limits."""
         g = self.geometry
         ranges = np.asarray(msg.ranges, dtype=float)
-        out = np.where(ranges >= g.range_max_m, np.inf, ranges)  # +inf and beyond range_max: no return
+        n, a0, inc = len(ranges), float(msg.angle_min), float(msg.angle_increment)
+        rmin, rmax = float(msg.range_min), float(msg.range_max)
+        key = (n, round(a0, 9), round(inc, 12))
+        self.geometry_counts[key] = self.geometry_counts.get(key, 0) + 1
+        if not (math.isfinite(rmax) and rmax > max(rmin, 0.0)):
+            rmax = g.range_max_m  # a message without usable limits: the first scan's
+        self.range_max_counts[rmax] = self.range_max_counts.get(rmax, 0) + 1
+        out = np.where(ranges >= rmax, np.inf, ranges)  # +inf and beyond range_max: no return
+        if rmax < g.range_max_m:
+            # No return within a shorter range_max than the log's: the beam saw free space only to rmax, and
+            # the log's range is the first scan's: say nothing of that beam rather than claim more.
+            blind = ranges >= rmax
+            self.blind_readings += int(np.count_nonzero(blind))
+            out = np.where(blind, 0.0, out)
         # NaN (no valid reading) and below range_min (too close, -inf): no observation, and the beam
         # tells nothing of free space either: range 0 (below self_return_range_m, so not a return).
-        out = np.where(np.isnan(ranges) | (ranges < g.range_min_m), 0.0, out)
+        bad = np.isnan(ranges) | (ranges < rmin)
+        self.invalid_readings += int(np.count_nonzero(bad))
+        out = np.where(bad, 0.0, out)
         inten = np.asarray(msg.intensities, dtype=float) if len(msg.intensities) == len(ranges) else None
+        start = a0
         if self.mount.upside_down:
             out = out[::-1]
             inten = None if inten is None else inten[::-1]
-        end = self.start_angle_rad + (g.beam_count - 1) * g.angle_increment_rad
-        return ScanRecord(t_ns / NS, out, self.start_angle_rad, end, inten)
+            start = -(a0 + (n - 1) * inc)  # seen from above the sweep runs the other way (see __init__)
+        return ScanRecord(t_ns / NS, out, start, start + (n - 1) * inc, inten)
 
     def _pair(self, scan: ScanRecord, odom: OdomSample, last_ns: int) -> Iterator[tuple[int, Record]]:
         ns = max(odom.t_ns, last_ns + 1)
@@ -440,6 +459,27 @@ class BagStream:
         ):
             if n:
                 self.warnings.append(f"{self.path}: {n} scans {why}; left out")
+        if len(self.geometry_counts) > 1:
+            kinds = ", ".join(
+                f"{n} beams from {math.degrees(a0):.2f} deg by {math.degrees(inc):.3f} deg: {count}"
+                for (n, a0, inc), count in sorted(self.geometry_counts.items(), key=lambda kv: -kv[1])
+            )
+            self.warnings.append(
+                f"{self.path}: {self.scan.topic} interleaves {len(self.geometry_counts)} scan geometries "
+                f"({kinds} scans); each scan keeps its own beams"
+            )
+        if len(self.range_max_counts) > 1:
+            kinds = ", ".join(f"{r:g} m: {count}" for r, count in sorted(self.range_max_counts.items()))
+            self.warnings.append(
+                f"{self.path}: range_max differs between messages ({kinds} scans); the map's range is the first "
+                f"scan's {self.geometry.range_max_m:g} m, and {self.blind_readings} no-return readings of "
+                "shorter-ranged scans are left without an observation"
+            )
+        if self.invalid_readings:
+            self.warnings.append(
+                f"{self.path}: {self.invalid_readings} readings are NaN or below their message's range_min; "
+                "left without an observation"
+            )
         if c.odometry_backwards:
             self.warnings.append(
                 f"{self.path}: {c.odometry_backwards} odometry samples did not advance in time; ignored"

@@ -55,7 +55,7 @@ def _rows(writer: RerunResultWriter, n: int) -> None:
         writer.stats["time"].append(0.1 * i)
         for key in ("ess", "map", "ms"):
             writer.stats[key].append(1.0)
-        writer.pending_scans.append((np.full(181, 5.0), np.array([0.1 * i, 0.0, 0.0])))
+        writer.pending_scans.append((np.full(181, 5.0), np.array([0.1 * i, 0.0, 0.0]), GEOMETRY.bearings_rad))
         writer.pending_particles.append(np.zeros((4, 2)))
         writer.online.append(np.zeros(2))
 
@@ -114,7 +114,7 @@ def test_a_map_snapshot_is_sent_as_a_copy_not_a_view_of_the_filters_buffer(tmp_p
     result = SimpleNamespace(
         poses=np.zeros((3, 3)), best_pose=np.zeros(3), best=0, effective_sample_size=3.0, map_points=10
     )
-    event = SimpleNamespace(index=25, t_s=2.5, ranges_m=np.full(181, 5.0))
+    event = SimpleNamespace(index=25, t_s=2.5, ranges_m=np.full(181, 5.0), geometry=GEOMETRY)
     writer.step(SimpleNamespace(result=result, event=event, step_ms=1.0, laser_pose=np.zeros(3)), Flt())
     (snapshot,) = [c for c in sent if c[0] == "map"]
     _, scan, _, xy, p = snapshot

@@ -48,7 +48,9 @@ def gmapping_scan_lines(log: InputLog) -> Iterator[str]:
     for (ev, _), pose in zip(scans, poses, strict=True):
         r = np.asarray(ev.ranges_m, dtype=float)
         r = np.where(np.isfinite(r) & (r < geom.max_range_m), r, geom.max_range_m)
-        yield f"SCAN {ev.t_s:.6f} {pose[0]:.6f} {pose[1]:.6f} {pose[2]:.6f} {head} " + " ".join(f"{v:.3f}" for v in r)
+        own = ev.geometry if ev.geometry is not None else geom
+        beams = head if own is geom else f"{own.start_angle_rad:.9f} {own.angle_increment_rad:.9f} {own.beam_count}"
+        yield f"SCAN {ev.t_s:.6f} {pose[0]:.6f} {pose[1]:.6f} {pose[2]:.6f} {beams} " + " ".join(f"{v:.3f}" for v in r)
 
 
 def write_gmapping_log(input_path: Path, output_path: Path) -> int:

@@ -50,10 +50,13 @@ def build_grid(
         if k != scan_indices[j]:
             continue
         r = np.asarray(msg.value.ranges, dtype=float)
-        if len(r) != g.beam_count:
-            raise InputError(f"{log.path}: scan {k} has {len(r)} ranges, expected {g.beam_count}")
+        try:
+            own = log.scan_geometry(msg.value, len(r))
+        except ValueError as e:
+            raise InputError(f"{log.path}: scan {k}: {e}") from None
         returns = np.isfinite(r) & (r < g.max_range_m) & (r > log.self_return_range_m)
-        casts.add_scan(laser_poses[j], np.where(returns, r, np.nan), bearings)
+        beams = bearings if own is g else own.bearings_rad + bearing_offset_rad
+        casts.add_scan(laser_poses[j], np.where(returns, r, np.nan), beams)
         j += 1
     if j < len(scan_indices):
         raise InputError(

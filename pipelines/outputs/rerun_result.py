@@ -73,7 +73,9 @@ class RerunResultWriter:
     # --- the steps ----------------------------------------------------------------------------
     def step(self, st: Step, flt: SlamFilter) -> None:
         r = st.result
-        self.pending_scans.append((st.event.ranges_m, st.laser_pose))  # end points computed at _flush
+        g = st.event.geometry
+        bearings = self.bearings if g is None or g == self.geometry else g.bearings_rad
+        self.pending_scans.append((st.event.ranges_m, st.laser_pose, bearings))  # end points computed at _flush
         self.pending_particles.append(r.poses[:, :2].copy())
         self.online.append(r.best_pose[:2].copy())
         for key, value in (
@@ -110,13 +112,15 @@ class RerunResultWriter:
         self.pending_scans, self.pending_particles = [], []
 
     def _scan_end_points(self) -> list[np.ndarray]:
-        """The world-frame end points of the returns of each pending scan, computed for all at once."""
-        ranges = np.stack([r for r, _ in self.pending_scans])
-        poses = np.stack([pose for _, pose in self.pending_scans])
+        """The world-frame end points of the returns of each pending scan (each with its own beams),
+        computed for all at once."""
+        ranges = np.concatenate([r for r, _, _ in self.pending_scans])
+        bearings = np.concatenate([b for _, _, b in self.pending_scans])
+        poses = np.stack([pose for _, pose, _ in self.pending_scans])
+        row = np.repeat(np.arange(len(poses)), [len(r) for r, _, _ in self.pending_scans])
         ok = np.isfinite(ranges) & (ranges < self.geometry.max_range_m)
-        row, beam = np.nonzero(ok)
-        pts = inverse_measure(poses[row], ranges[row, beam], self.bearings[beam])
-        return np.split(pts, np.cumsum(ok.sum(axis=1))[:-1])
+        pts = inverse_measure(poses[row[ok]], ranges[ok], bearings[ok])
+        return np.split(pts, np.cumsum(np.bincount(row[ok], minlength=len(poses)))[:-1])
 
     def finish(self, end: RunEnd) -> Path:
         """Send the rest and the final map and trajectories; the writer process's memory and processor time

@@ -24,6 +24,9 @@ class ScanEvent:
     stamp_s: float  # the sensor's own time stamp (may go backwards in some logs)
     ranges_m: np.ndarray
     intensities: np.ndarray | None
+    geometry: ScanGeometry | None = None
+    """The scan's own beam geometry: the log's (`InputLog.geometry`, the same object) unless the message
+    says otherwise (lasers that interleave scan geometries)."""
 
 
 @dataclass
@@ -47,6 +50,8 @@ class GpsEvent:
 
 Event = ScanEvent | ControlEvent | OdomEvent | GpsEvent
 INPUT_TOPICS = [ch.LASER, ch.ODOM_ACKERMANN, ch.ODOM_POSE, ch.GPS]
+GEOMETRY_TOLERANCE_RAD = 1e-6
+"""A scan whose first and last beam angles lie this close to the log's has the log's geometry."""
 
 
 class InputLog:
@@ -101,16 +106,35 @@ class InputLog:
         self.start_s = summary.statistics.message_start_time / 1e9
         self.end_s = summary.statistics.message_end_time / 1e9
 
+    def scan_geometry(self, scan: Any, beams: int) -> ScanGeometry:
+        """The geometry of a /laser/scan message with `beams` ranges: the log's when the message agrees
+        with it, else the message's own (its start and end angles, the log's maximum range). ValueError
+        for a message whose angles cannot place its beams."""
+        g = self.geometry
+        start, end = float(scan.start_angle), float(scan.end_angle)
+        if beams == g.beam_count and (
+            (start == 0.0 and end == 0.0)  # no angles in the message: the metadata's
+            or (
+                abs(start - g.start_angle_rad) <= GEOMETRY_TOLERANCE_RAD
+                and abs(end - g.end_angle_rad) <= GEOMETRY_TOLERANCE_RAD
+            )
+        ):
+            return g
+        if beams < 2 or not (math.isfinite(start) and math.isfinite(end) and end > start):
+            raise ValueError(
+                f"{beams} ranges from {start} to {end} rad: cannot place the beams (the log has {g.beam_count})"
+            )
+        return ScanGeometry(beams, start, (end - start) / (beams - 1), g.max_range_m)
+
     def _event(self, msg: Message) -> Event:
         v = msg.value
         if msg.topic == ch.LASER:
             ranges = np.asarray(v.ranges, dtype=float)
-            if len(ranges) != self.geometry.beam_count:
-                raise ValueError(f"{len(ranges)} ranges, expected {self.geometry.beam_count}")
+            geometry = self.scan_geometry(v, len(ranges))
             if np.isnan(ranges).any() or (ranges < 0).any():
                 raise ValueError("ranges must be non-negative numbers (+inf: no return)")
-            inten = np.asarray(v.intensities, dtype=float) if len(v.intensities) else None
-            return ScanEvent(-1, msg.t_s, ch.t_of(v.timestamp), ranges, inten)
+            inten = np.asarray(v.intensities, dtype=float) if len(v.intensities) == len(ranges) else None
+            return ScanEvent(-1, msg.t_s, ch.t_of(v.timestamp), ranges, inten, geometry)
         if msg.topic == ch.ODOM_ACKERMANN:
             return ControlEvent(msg.t_s, *_finite(v["speed_mps"], v["steering_rad"]))
         if msg.topic == ch.ODOM_POSE:

@@ -134,14 +134,16 @@ class SlamRunner:
         t_prev = self.t_init_s
         odom_prev: np.ndarray | None = None
         odom_last: np.ndarray | None = None
-        geom = self.log.geometry
-        if self.cfg.laser_yaw_offset_rad:
-            geom = ScanGeometry(
-                geom.beam_count,
-                geom.start_angle_rad + self.cfg.laser_yaw_offset_rad,
-                geom.angle_increment_rad,
-                geom.max_range_m,
+        yaw = self.cfg.laser_yaw_offset_rad
+
+        def turned(g: ScanGeometry) -> ScanGeometry:
+            """The scan's geometry with the laser's mounting yaw added to every bearing."""
+            return (
+                ScanGeometry(g.beam_count, g.start_angle_rad + yaw, g.angle_increment_rad, g.max_range_m) if yaw else g
             )
+
+        log_geom = self.log.geometry
+        geom = turned(log_geom)
         for ev in self.log.events():
             if isinstance(ev, ControlEvent):
                 controls.append([ev.t_s, ev.speed_mps, ev.steering_rad])
@@ -200,7 +202,8 @@ class SlamRunner:
                                 return mount.laser_of(base)
 
                     odom_prev = odom_last
-                scan = Scan(ev.stamp_s, ev.ranges_m, geom, self.min_range_m)
+                own = ev.geometry if ev.geometry is not None else log_geom
+                scan = Scan(ev.stamp_s, ev.ranges_m, geom if own is log_geom else turned(own), self.min_range_m)
                 t0 = time.perf_counter()
                 result = self.filter.step(scan, predict, ev.intensities)
                 step_ms = (time.perf_counter() - t0) * 1e3
