@@ -14,6 +14,7 @@ CARPARK = DATASETS / "carpark"
 VICTORIA = DATASETS / "victoria_park"
 MIT = DATASETS / "freiburg" / "mit-csail.clf.gz"
 INTEL = DATASETS / "freiburg" / "intel.clf.gz"
+FR079 = DATASETS / "freiburg" / "fr079.clf.gz"
 
 
 def require(path: Path) -> Path:
@@ -32,6 +33,15 @@ def carpark_mcap(tmp_path_factory) -> Path:
 
     out = tmp_path_factory.mktemp("carpark") / "carpark.mcap"
     ingest(require(CARPARK), out)
+    return out
+
+
+@pytest.fixture(scope="session")
+def fr079_mcap(tmp_path_factory) -> Path:
+    from ingest import ingest
+
+    out = tmp_path_factory.mktemp("fr079") / "fr079.mcap"
+    ingest(require(FR079), out)
     return out
 
 

@@ -40,6 +40,8 @@ class ControlEvent:
 class OdomEvent:
     t_s: float
     pose: np.ndarray  # x, y, theta
+    tv_mps: float | None = None
+    """The translational velocity logged with the pose, where the log has one."""
 
 
 @dataclass
@@ -138,7 +140,9 @@ class InputLog:
         if msg.topic == ch.ODOM_ACKERMANN:
             return ControlEvent(msg.t_s, *_finite(v["speed_mps"], v["steering_rad"]))
         if msg.topic == ch.ODOM_POSE:
-            return OdomEvent(msg.t_s, np.array(_finite(v["x_m"], v["y_m"], v["theta_rad"])))
+            tv = v.get("tv_mps")
+            tv = None if tv is None else _finite(tv)[0]
+            return OdomEvent(msg.t_s, np.array(_finite(v["x_m"], v["y_m"], v["theta_rad"])), tv)
         return GpsEvent(msg.t_s, np.array(_finite(v.pose.position.x, v.pose.position.y)))
 
     def events(self) -> Iterator[Event]:

@@ -21,6 +21,7 @@ from pipelines.errors import InputError
 from pipelines.methods import make_filter, method
 from pipelines.run.input_log import ControlEvent, GpsEvent, InputLog, OdomEvent, ScanEvent
 from pipelines.run.mount import BaseFrameView
+from pipelines.run.odometry_check import ReversalCheck
 
 
 @dataclass
@@ -46,6 +47,10 @@ class RunConfig:
     threads: int | None = None
     """Worker threads of the filter's compiled particle loops (None: every core). Results do not depend
     on it."""
+    odometry_reversal_check: bool = True
+    """Turn around the odometry increments whose direction contradicts the velocity logged with them (a
+    driver that reports backing up as going forward; `pipelines.run.odometry_check`). Odometry without
+    velocities, or whose velocities agree, is used as it is."""
     occupancy: bool = False
     """Also write the final trinary occupancy grid on /map/occupancy (pipelines.outputs.navigation_map)."""
     occupancy_resolution_m: float = 0.05
@@ -142,13 +147,14 @@ class SlamRunner:
                 ScanGeometry(g.beam_count, g.start_angle_rad + yaw, g.angle_increment_rad, g.max_range_m) if yaw else g
             )
 
+        reversal = self.reversal_check = ReversalCheck() if self.cfg.odometry_reversal_check else None
         log_geom = self.log.geometry
         geom = turned(log_geom)
         for ev in self.log.events():
             if isinstance(ev, ControlEvent):
                 controls.append([ev.t_s, ev.speed_mps, ev.steering_rad])
             elif isinstance(ev, OdomEvent):
-                odom_last = ev.pose
+                odom_last = ev.pose if reversal is None else reversal.update(ev.pose, ev.tv_mps)
             elif isinstance(ev, GpsEvent):
                 self.gps.append((ev.t_s, float(ev.xy[0]), float(ev.xy[1])))
             elif isinstance(ev, ScanEvent):
