@@ -25,8 +25,9 @@ class FilterConfig:
     weighting "sum", proposal "motion", update_schedule "every_scan" (see `literal()`).
     """
 
-    particles: int = 8
-    """N, the number of particles."""
+    particles: int = 30
+    """N, the number of particles. 30, GMapping's default: at the paper's 8 the filter breaks loops on
+    logs it holds at 30 (docs/CHOICES.md, "The number of particles"); `-N 8` gives the paper's."""
     points_per_observation: int = 10
     """M, new map points drawn per observation (per return, or per scan: see observation_unit)."""
     seed: int = 0

@@ -303,7 +303,7 @@ def test_progress_off_a_terminal_and_time_per_update(tiny, tmp_path):
 def test_help_shows_bracketed_words_and_defaults():
     text = run("process", "--help").output
     assert "[filter] options and run options" in text
-    assert "[default: (8); 1<=x<=4096]" in " ".join(text.split())  # particles: FilterConfig's default
+    assert "[default: (30); 1<=x<=4096]" in " ".join(text.split())  # particles: FilterConfig's default
     assert "[options]" in run("sweep", "--help").output
 
 

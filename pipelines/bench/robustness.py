@@ -93,7 +93,10 @@ def run_robustness(
                 res.gslam_wall_s.append(time.perf_counter() - t0)
                 res.peak_mb.append(float(run.result.get("peak_rss_mb") or float("nan")))
                 defaults = Task(mcap, particles=_default_particles(), seed=seed)  # N and M: the defaults
-                res.defaults_m[seed] = _error(run_task(defaults, out, command="gslam bench robustness").metrics)
+                if defaults == run.task:  # the defaults are N `particles`: the same run
+                    res.defaults_m[seed] = res.gslam_m[seed]
+                else:
+                    res.defaults_m[seed] = _error(run_task(defaults, out, command="gslam bench robustness").metrics)
                 line = f"robustness: {log.name} seed {seed}: G-SLAM N {particles} {res.gslam_m[seed]:.3f} m, "
                 line += f"defaults {res.defaults_m[seed]:.3f} m"
                 if gmapping is not None:

@@ -17,7 +17,7 @@ from gslam.config import FilterConfig
 class Task:
     input: Path
     method: str = "gslam"
-    particles: int = 8
+    particles: int = 30
     points: int = 10
     seed: int = 0
     options: dict[str, Any] = field(default_factory=dict)

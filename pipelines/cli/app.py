@@ -519,7 +519,10 @@ def demo(
     seed: Annotated[
         int, typer.Option("--seed", min=0, max=2**32 - 1, help="Seed of the simulation and the filter.")
     ] = 0,
-    particles: Annotated[int, typer.Option("--particles", "-N", min=1, max=4096, help="Number of particles N.")] = 8,
+    particles: Annotated[
+        int,
+        typer.Option("--particles", "-N", min=1, max=4096, help="Number of particles N (the paper's 8: a quick demo)."),
+    ] = 8,
     points: Annotated[int, typer.Option("--points", "-M", min=1, max=1000, help="New points per observation M.")] = 10,
 ) -> None:
     """Simulate a Car Park-like log, then ingest, process, evaluate against the truth and plot it."""
