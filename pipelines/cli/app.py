@@ -521,7 +521,7 @@ def demo(
     ] = 0,
     particles: Annotated[
         int,
-        typer.Option("--particles", "-N", min=1, max=4096, help="Number of particles N (the paper's 8: a quick demo)."),
+        typer.Option("--particles", "-N", min=1, max=4096, help="Particles N (the paper's 8, quick)."),
     ] = 8,
     points: Annotated[int, typer.Option("--points", "-M", min=1, max=1000, help="New points per observation M.")] = 10,
 ) -> None:
