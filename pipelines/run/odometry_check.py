@@ -11,6 +11,8 @@ increments, passes through unchanged (the very same poses).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from gslam.motion import wrap_angle
@@ -36,27 +38,29 @@ class ReversalCheck:
     def update(self, pose: np.ndarray, tv_mps: float | None) -> np.ndarray:
         """The pose to use for the sample `pose` (the raw odometry) with its velocity `tv_mps` (None: not
         logged with it; the last velocity logged is used)."""
-        pose = np.asarray(pose, dtype=float)
-        if tv_mps is not None and np.isfinite(tv_mps):
+        if tv_mps is not None and math.isfinite(tv_mps):
             self._tv = float(tv_mps)
-        if self._raw is None:
-            self._raw, self._clean = pose, pose
+        if self._raw is None or (self._tv is None and not self._corrected):
+            self._raw, self._clean = pose, pose  # nothing to compare with (yet)
             return pose
-        step = compose(inverse(self._raw), pose)
+        x0, y0, th0 = self._raw
+        x1, y1 = float(pose[0]), float(pose[1])
         self._raw = pose
+        forward = math.cos(th0) * (x1 - x0) + math.sin(th0) * (y1 - y0)  # scalars: this runs for every sample
         contradicts = (
             self._tv is not None
             and abs(self._tv) >= MIN_SPEED_MPS
-            and abs(step[0]) >= MIN_STEP_M
-            and (step[0] > 0) != (self._tv > 0)
+            and abs(forward) >= MIN_STEP_M
+            and (forward > 0) != (self._tv > 0)
         )
+        if not contradicts and not self._corrected:
+            self._clean = pose
+            return pose
+        step = compose(inverse(np.array([x0, y0, th0], dtype=float)), np.asarray(pose, dtype=float))
         if contradicts:
             step = np.array([-step[0], -step[1], step[2]])
             self.turned += 1
             self._corrected = True
-        if not self._corrected:
-            self._clean = pose
-            return pose
         clean = compose(self._clean, step)
         clean[2] = wrap_angle(clean[2])
         self._clean = clean
