@@ -85,3 +85,18 @@ def test_a_corrupted_log_is_ingested_with_its_relations(tmp_path):
     assert len(data.scan_t_s) == 60 and data.geometry.beam_count == 180
     again = read_corrected(log)  # the written log reads back: the odometry in its poses
     np.testing.assert_allclose(again.poses, odom, atol=1e-6)
+
+
+def test_the_verdict_is_the_issues_bar():
+    from pathlib import Path
+
+    from pipelines.bench.corpus import CorpusLog
+    from pipelines.bench.robustness import LogResult, robustness_section
+
+    log = CorpusLog("x", Path("x.clf"), 10, 5.0, "corrupted, seed 0")
+    holds = LogResult(log, odometry_m=1.0, gslam_m={0: 0.05, 1: 0.06}, gmapping_m={0: 0.06, 1: 0.06})
+    assert holds.verdict() == "holds"
+    broken = LogResult(log, odometry_m=0.3, gslam_m={0: 0.05, 1: 0.4}, gmapping_m={0: 0.06, 1: 0.06})
+    assert broken.verdict() == "mean above GMapping's; a seed above 2x GMapping; a seed worse than odometry"
+    text = robustness_section([holds, broken], "gslam bench --suite robustness", "m", "s", 30, 0)
+    assert "| x | 10 | 1.000 | 0.050 / 0.060 | 0.055 |" in text and text.count("| x |") == 4
