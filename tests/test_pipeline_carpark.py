@@ -177,7 +177,8 @@ def test_bench_quick_end_to_end(tmp_path):
 @pytest.mark.parametrize("method", ["fastslam1", "fastslam2"])
 def test_fastslam_end_to_end(carpark_mcap, tmp_path, method):
     out = tmp_path / f"{method}.mcap"
-    res = CliRunner().invoke(app, ["process", str(carpark_mcap), str(out), "--method", method, "--seed", "0"])
+    args = ["process", str(carpark_mcap), str(out), "--method", method, "--seed", "0", "-N", "8"]  # as measured
+    res = CliRunner().invoke(app, args)
     assert res.exit_code == 0, res.output
     m = evaluate_result(out)
     meta = mcap_info(out)["metadata"]
@@ -201,7 +202,7 @@ def test_unknown_method(carpark_mcap, tmp_path):
 def test_grid_end_to_end(carpark_mcap, tmp_path, method):
     out = tmp_path / f"{method}.mcap"
     res = CliRunner().invoke(
-        app, ["process", str(carpark_mcap), str(out), "--method", method, "--seed", "1", "--no-rrd"]
+        app, ["process", str(carpark_mcap), str(out), "--method", method, "--seed", "1", "-N", "8", "--no-rrd"]
     )
     assert res.exit_code == 0, res.output
     m = evaluate_result(out)
