@@ -140,7 +140,6 @@ class GSlamFilter:
         self.maps, self._layout, log_like, map_points_total = self.map_update(
             self.maps, layout, self.poses, scan, self.rng, matched_log_like
         )
-        del layout
         # 6. Weights, effective sample size, resampling (RSR).
         self.weights, ess, parents = reweight_and_resample(self.weights, log_like, cfg.resample_threshold, self.rng)
         best = self.best_particle()

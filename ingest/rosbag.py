@@ -64,7 +64,8 @@ class TopicChoice:
 
 @dataclass(frozen=True)
 class ScanGeometryRos:
-    """The geometry the first scan sets; every later scan must agree."""
+    """The first scan's geometry: the log's in the metadata (later scans keep their own beams) and the
+    range limit of the map."""
 
     beam_count: int
     angle_min_rad: float
@@ -223,7 +224,7 @@ class BagStream:
             float(msg.range_max),
             frame_name(msg.header.frame_id),
         )
-        self._check_scan(msg, 0, geom)
+        self._check_scan(msg, 0)
         if not (math.isfinite(geom.range_max_m) and geom.range_max_m > max(geom.range_min_m, 0.0)):
             raise IngestError(
                 f"{self.path}: {self.scan.topic} message 0: range_max {geom.range_max_m} m is not above "
@@ -231,7 +232,7 @@ class BagStream:
             )
         return geom
 
-    def _check_scan(self, msg, index: int, geom: ScanGeometryRos) -> None:
+    def _check_scan(self, msg, index: int) -> None:
         where = f"{self.path}: {self.scan.topic} message {index}"
         n = len(msg.ranges)
         inc, a0, a1 = float(msg.angle_increment), float(msg.angle_min), float(msg.angle_max)
@@ -354,7 +355,7 @@ class BagStream:
         try:
             for topic, index, bag_ns, msg in self._stream(reader, topics):
                 if topic == self.scan.topic:
-                    self._check_scan(msg, index, self.geometry)
+                    self._check_scan(msg, index)
                     t_ns = _stamp_ns(msg.header, bag_ns)
                     span = (t_ns, t_ns) if span is None else (min(span[0], t_ns), max(span[1], t_ns))
                     aligner.add_scan(t_ns, self._scan_record(msg, t_ns))

@@ -487,6 +487,5 @@ class WindowedUpdate:
         )
         new_maps = [PointMap(out_xy[a:b], out_p[a:b]) for a, b in bounds]
         new_layout = (out_xy, out_p, bounds[:, 0].copy(), bounds[:, 1].copy())
-        del layout, lo, hi
         self.workspace.release(xy, p)  # the maps before this update: written to again when free
         return new_maps, new_layout, log_like, int((bounds[:, 1] - bounds[:, 0]).sum())

@@ -102,12 +102,12 @@ def run_bench(
             runs += [(name, n, m) for n, m in grid]
         else:
             runs += [(name, n, 0) for n in sorted({n for n, _ in grid})]
+    # the base options besides those each task sets
+    options = {k: v for k, v in base_dict.items() if k not in ("particles", "points_per_observation", "seed")}
     with tempfile.TemporaryDirectory(prefix="gslam-bench-") as tmp:
         for method, n, m in runs:
             cell = CellResult(n, m, method)
             for seed in range(seeds):
-                options = {k: v for k, v in base_dict.items() if k not in ("particles", "points_per_observation")}
-                options.pop("seed")
                 task = Task(input_mcap, method, n, max(m, 1), seed, options)
                 out = Path(tmp) / f"{method}_n{n}_m{m}_s{seed}.mcap"
                 t0 = time.perf_counter()

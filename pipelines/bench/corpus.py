@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import gzip
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -180,8 +180,6 @@ class CorpusLog:
     path_m: float
     source: str
     """"real odometry" (Freiburg) or "corrupted from corrected poses, seed S" (Radish)."""
-    faults: dict[str, float] = field(default_factory=dict)
-    """The drawn magnitudes of the Radish logs' faults (scale, turn bias, rotation scale)."""
 
 
 def write_corrupted(
@@ -223,12 +221,5 @@ def build_corpus(
         out = workdir / f"{name}-s{seed}.clf"
         if not out.exists() or not out.with_suffix(".relations").exists():
             write_corrupted(corrected, out, seed)
-        rng = np.random.default_rng(seed)
-        faults = OdometryFaults()
-        drawn = {
-            "scale": rng.normal(0.0, faults.scale_sd),
-            "turn_bias_rad_per_m": rng.normal(0.0, faults.turn_bias_sd_rad_per_m),
-            "rotation_scale": rng.normal(0.0, faults.rotation_scale_sd),
-        }
-        corpus.append(CorpusLog(name, out, len(corrected.ranges), corrected.path_m, f"corrupted, seed {seed}", drawn))
+        corpus.append(CorpusLog(name, out, len(corrected.ranges), corrected.path_m, f"corrupted, seed {seed}"))
     return corpus

@@ -15,8 +15,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from pipelines.bench.corpus import CorpusLog, build_corpus
-from pipelines.bench.suites import run_gmapping
+from pipelines.bench.suites import ingest_to, run_gmapping
 from pipelines.bench.tasks import Task, run_task
+from pipelines.run.input_log import InputLog
 
 
 @dataclass
@@ -73,27 +74,20 @@ def run_robustness(
         for log in build_corpus(datasets, work / "corpus", corpus_seed):
             if only and log.name not in only:
                 continue
-            from ingest import ingest as run_ingest
-
-            mcap = work / f"{log.name}.mcap"
-            if not mcap.exists():
-                run_ingest(log.log, mcap)
+            mcap = ingest_to(log.log, work)
             if not log.scans:
-                from pipelines.run.input_log import InputLog
-
                 log.scans = InputLog(mcap).scan_count
             res = LogResult(log)
             out = work / f"{log.name}-result.mcap"
             res.odometry_m = _error(run_task(Task(mcap, "odometry", 1), out, command="gslam bench robustness").metrics)
             progress(f"robustness: {log.name} odometry alone {res.odometry_m:.3f} m")
             for seed in seeds:
-                t0 = time.perf_counter()
-                # a child process, as a user runs it: its peak memory is this run's own
+                # a child process, as a user runs it: its wall time and peak memory are this run's own
                 run = run_task(Task(mcap, particles=particles, seed=seed), out, child_process=True)
                 res.gslam_m[seed] = _error(run.metrics)
-                res.gslam_wall_s.append(time.perf_counter() - t0)
+                res.gslam_wall_s.append(run.wall_s)
                 res.peak_mb.append(float(run.result.get("peak_rss_mb") or float("nan")))
-                defaults = Task(mcap, particles=_default_particles(), seed=seed)  # N and M: the defaults
+                defaults = Task(mcap, seed=seed)  # N and M: the filter's defaults
                 if defaults == run.task:  # the defaults are N `particles`: the same run
                     res.defaults_m[seed] = res.gslam_m[seed]
                 else:
@@ -114,12 +108,6 @@ def run_robustness(
                 progress(line)
             results.append(res)
     return results
-
-
-def _default_particles() -> int:
-    from gslam.config import FilterConfig
-
-    return FilterConfig().particles
 
 
 def _seeds(values: dict[int, float]) -> str:

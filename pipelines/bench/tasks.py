@@ -17,8 +17,8 @@ from gslam.config import FilterConfig
 class Task:
     input: Path
     method: str = "gslam"
-    particles: int = 30
-    points: int = 10
+    particles: int = FilterConfig.particles
+    points: int = FilterConfig.points_per_observation
     seed: int = 0
     options: dict[str, Any] = field(default_factory=dict)
     """Filter options (FilterConfig names) besides N, M and the seed."""

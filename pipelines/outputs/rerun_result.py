@@ -51,7 +51,7 @@ class RerunResultWriter:
         self.app_id = app_id
         self.stats: dict[str, list[float]] = {k: [] for k in ("scan", "time", "ess", "map", "ms")}
         self.online: list[np.ndarray] = []
-        self.pending_scans: list[tuple[np.ndarray, np.ndarray]] = []
+        self.pending_scans: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # ranges, laser pose, bearings
         self.pending_particles: list[np.ndarray] = []
         self.finished = False
         self.writer = writer if writer is not None else start_rerun_writer(self.path)

@@ -8,7 +8,7 @@ temporary file and renames it into place on `finish`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -49,7 +49,6 @@ class RunEnd:
     """The result's record (steps, times, memory, interrupted); a writer may add its own figures to it
     before the writers after it finish."""
     occupancy: OccupancyMap | None = None
-    extras: dict[str, Any] = field(default_factory=dict)
 
 
 class ResultWriter(Protocol):
