@@ -136,6 +136,15 @@ class FilterConfig:
     distance is taken across the line through them instead of to the nearest of them (PL-ICP, Censi
     2008), so it does not depend on where the return falls between the map's samples. 0: point to point
     everywhere."""
+    match_coarse_factor: int = 4
+    """Coarse to fine: each climb starts on a raster this many times coarser than match_cell_m, with the
+    score's width, the kernel's reach, the steps and the line pairs scaled alike, then goes on at the fine
+    raster from where it stopped (as multi-resolution matchers do: Olson 2009, Hector, Cartographer). A
+    return then finds the map up to this many times further away, so an odometry error of a few tenths of
+    a metre (a slip, a sign error when reversing) is still inside the match's basin. 1: the fine raster
+    only (docs/CHOICES.md)."""
+    match_coarse_levels: int = 2
+    """Step halvings of the coarse climb (log2 of match_coarse_factor brings its steps to the fine ones)."""
     match_min_p: float = 0.5
     """Map points with at least this probability take part in matching and weighing."""
     match_step_xy_m: float = 0.05
@@ -250,6 +259,8 @@ _LIMITS: dict[str, tuple[float, float, bool]] = {
     "weight_sigma_m": (0, math.inf, False),
     "weight_floor": (0, 1, False),
     "weight_beam_stride": (1, 10_000, True),
+    "match_coarse_factor": (1, 64, True),
+    "match_coarse_levels": (0, 64, True),
     "prior_neighbours": (1, 64, True),
     "prior_radius_m": (0, math.inf, False),
     "prior_p0": (0, math.inf, False),

@@ -205,6 +205,8 @@ class GSlamFilter:
             miss_m=cfg.weight_miss_m,
             line_pair_m=cfg.match_line_pair_m,
             workspace=self._workspace,
+            coarse_factor=cfg.match_coarse_factor,
+            coarse_levels=cfg.match_coarse_levels,
         )
         if not climb:
             return 0, log_like

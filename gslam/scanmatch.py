@@ -147,30 +147,10 @@ def _log_likelihood(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean
     return total, hits
 
 
-@njit(cache=True)
-def _match_one(
-    i,
-    map_xy,
-    map_p,
-    lo,
-    hi,
-    pose0,
-    ends,
-    dirs,
-    score_inv,
-    window,
-    cell_m,
-    kernel,
-    min_p,
-    match,
-    grid,
-    sums,
-    touched,
-    out,
-):
-    """Rasterise particle i's window of its map, climb the score, weigh the scan; reset the raster."""
-    x0, y0 = window[0], window[1]
-    nx, ny = int(window[2]), int(window[3])
+@njit(cache=True, inline="always")
+def _rasterise(map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched):
+    """Rasterise the points lo:hi with p >= min_p inside the window into `grid` (slot per occupied cell,
+    -1 empty); sums[slot, :2] ends as the mean of the cell's points. Returns the occupied cells."""
     used = 0
     for k in range(lo, hi):
         if map_p[k] < min_p:
@@ -195,7 +175,111 @@ def _match_one(
     for slot in range(used):
         sums[slot, 0] /= sums[slot, 2]
         sums[slot, 1] /= sums[slot, 2]
-    mean_xy = sums
+    return used
+
+
+@njit(cache=True)
+def _climb(
+    pose,
+    ends,
+    dirs,
+    x0,
+    y0,
+    nx,
+    ny,
+    cell_m,
+    kernel,
+    grid,
+    mean_xy,
+    score_inv,
+    pair_d2,
+    inv_line,
+    step_xy,
+    step_phi,
+    levels,
+    max_iter,
+):
+    """Hill-climb `pose` (in place) on the score: one step forwards and backwards in x, y and phi, move to
+    the best while it improves, halve the steps when it does not, `levels` times (GMapping's
+    `ScanMatcher::optimize`). Returns the score at the final pose."""
+    current = _score(
+        pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line, -np.inf
+    )
+    best = -1.0
+    refinement = 0
+    cand = np.empty(3)
+    back = -1  # the move back to the pose just left (`left`): it scored below the current pose
+    left = pose.copy()
+    for _ in range(max_iter):
+        if best >= current:
+            refinement += 1
+            step_xy *= 0.5
+            step_phi *= 0.5
+            back = -1
+        best = current
+        best_local = pose.copy()
+        chosen = -1
+        for move in range(6):
+            cand[0], cand[1], cand[2] = pose[0], pose[1], pose[2]
+            if move == 0:
+                cand[0] += step_xy
+            elif move == 1:
+                cand[0] -= step_xy
+            elif move == 2:
+                cand[1] += step_xy
+            elif move == 3:
+                cand[1] -= step_xy
+            elif move == 4:
+                cand[2] += step_phi
+            else:
+                cand[2] -= step_phi
+            if move == back and cand[0] == left[0] and cand[1] == left[1] and cand[2] == left[2]:
+                continue  # its score is known, below the current one (only when the move back lands
+                # exactly on it: the pose lattice meets the raster's cell edges, so a rounding off by one
+                # unit in the last place can change a score)
+            s = _score(
+                cand, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line, current
+            )
+            if s > current:
+                current = s
+                best_local[:] = cand
+                chosen = move
+        left[:] = pose
+        pose[:] = best_local
+        back = chosen ^ 1 if chosen >= 0 else -1  # moves come in pairs: 0/1 x, 2/3 y, 4/5 phi
+        if not (current > best or refinement < levels):
+            break
+    return current
+
+
+@njit(cache=True)
+def _match_one(
+    i,
+    map_xy,
+    map_p,
+    lo,
+    hi,
+    pose0,
+    ends,
+    dirs,
+    score_inv,
+    window,
+    cell_m,
+    kernel,
+    min_p,
+    match,
+    grid,
+    sums,
+    touched,
+    coarse_grid,
+    coarse_sums,
+    coarse_touched,
+    out,
+):
+    """Rasterise particle i's window of its map, climb the score (from the motion sample and, when
+    match[8] > 1, also coarse to fine from it, keeping the better), weigh the scan; reset the rasters."""
+    x0, y0 = window[0], window[1]
+    nx, ny = int(window[2]), int(window[3])
     step_xy, step_phi, levels, max_iter, like_inv, miss_d2 = (
         match[0],
         match[1],
@@ -206,71 +290,86 @@ def _match_one(
     )
     inv_line = match[4]  # 1 / 2 sigma_s^2: the width of a point-to-line distance
     pair_d2 = match[7]
+    factor = int(match[8])
     pose = pose0.copy()
-    current = (
-        _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line, -np.inf)
-        if used
-        else 0.0
-    )
+    used = _rasterise(map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched)
+    mean_xy = sums
+    current = 0.0
     if used:
-        best = -1.0
-        refinement = 0
-        cand = np.empty(3)
-        back = -1  # the move back to the pose just left (`left`): it scored below the current pose
-        left = pose.copy()
-        for _ in range(max_iter):
-            if best >= current:
-                refinement += 1
-                step_xy *= 0.5
-                step_phi *= 0.5
-                back = -1
-            best = current
-            best_local = pose.copy()
-            chosen = -1
-            for move in range(6):
-                cand[0], cand[1], cand[2] = pose[0], pose[1], pose[2]
-                if move == 0:
-                    cand[0] += step_xy
-                elif move == 1:
-                    cand[0] -= step_xy
-                elif move == 2:
-                    cand[1] += step_xy
-                elif move == 3:
-                    cand[1] -= step_xy
-                elif move == 4:
-                    cand[2] += step_phi
-                else:
-                    cand[2] -= step_phi
-                if move == back and cand[0] == left[0] and cand[1] == left[1] and cand[2] == left[2]:
-                    continue  # its score is known, below the current one (only when the move back lands
-                    # exactly on it: the pose lattice meets the raster's cell edges, so a rounding off by one
-                    # unit in the last place can change a score)
-                s = _score(
-                    cand,
-                    ends,
-                    dirs,
-                    x0,
-                    y0,
-                    nx,
-                    ny,
-                    cell_m,
-                    kernel,
-                    grid,
-                    mean_xy,
-                    score_inv,
-                    pair_d2,
-                    inv_line,
-                    current,
-                )
-                if s > current:
-                    current = s
-                    best_local[:] = cand
-                    chosen = move
-            left[:] = pose
-            pose[:] = best_local
-            back = chosen ^ 1 if chosen >= 0 else -1  # moves come in pairs: 0/1 x, 2/3 y, 4/5 phi
-            if not (current > best or refinement < levels):
-                break
+        current = _climb(
+            pose,
+            ends,
+            dirs,
+            x0,
+            y0,
+            nx,
+            ny,
+            cell_m,
+            kernel,
+            grid,
+            mean_xy,
+            score_inv,
+            pair_d2,
+            inv_line,
+            step_xy,
+            step_phi,
+            levels,
+            max_iter,
+        )
+    if used and factor > 1 and max_iter > 0:
+        # a second start, coarse to fine: climb from the motion sample on a raster `factor` times coarser
+        # (every width, reach and step scaled by it, so a return finds the map up to `factor` times further
+        # away), then on the fine raster from there; the better of the two fine scores is the match
+        cc = cell_m * factor
+        cnx, cny = nx // factor + 1, ny // factor + 1
+        cused = _rasterise(map_xy, map_p, lo, hi, min_p, x0, y0, cnx, cny, cc, coarse_grid, coarse_sums, coarse_touched)
+        second = pose0.copy()
+        f2 = float(factor * factor)
+        _climb(
+            second,
+            ends,
+            dirs,
+            x0,
+            y0,
+            cnx,
+            cny,
+            cc,
+            kernel,
+            coarse_grid,
+            coarse_sums,
+            score_inv / f2,
+            pair_d2 * f2,
+            inv_line / f2,
+            step_xy * factor,
+            step_phi * factor,
+            int(match[9]),
+            max_iter,
+        )
+        for slot in range(cused):
+            coarse_grid[coarse_touched[slot]] = _EMPTY
+        score2 = _climb(
+            second,
+            ends,
+            dirs,
+            x0,
+            y0,
+            nx,
+            ny,
+            cell_m,
+            kernel,
+            grid,
+            mean_xy,
+            score_inv,
+            pair_d2,
+            inv_line,
+            step_xy,
+            step_phi,
+            levels,
+            max_iter,
+        )
+        if score2 > current:
+            current = score2
+            pose[:] = second
     like, hits = _log_likelihood(
         pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, like_inv, miss_d2, pair_d2
     )
@@ -284,7 +383,25 @@ def _match_one(
 
 @njit(cache=True, parallel=True, nogil=True)
 def _match_all(
-    map_xy, map_p, lo, hi, poses, ends, dirs, score_inv, windows, cell_m, kernel, min_p, match, grids, sums, touched
+    map_xy,
+    map_p,
+    lo,
+    hi,
+    poses,
+    ends,
+    dirs,
+    score_inv,
+    windows,
+    cell_m,
+    kernel,
+    min_p,
+    match,
+    grids,
+    sums,
+    touched,
+    coarse_grids,
+    coarse_sums,
+    coarse_touched,
 ):
     n = poses.shape[0]
     workers = grids.shape[0]
@@ -313,27 +430,40 @@ def _match_all(
                 grids[w],
                 sums[w],
                 touched[w],
+                coarse_grids[w],
+                coarse_sums[w],
+                coarse_touched[w],
                 out,
             )
     return out
 
 
 class MatchWorkspace:
-    """Rasters reused between calls (one per worker), grown when a larger window or map comes."""
+    """Rasters reused between calls (one fine and one coarse per worker), grown when a larger window or
+    map comes."""
 
     def __init__(self, workers: int) -> None:
         self.workers = max(1, int(workers))
         self.grids = np.full((self.workers, 0), _EMPTY, dtype=np.int32)
         self.sums = np.empty((self.workers, 0, 3))
         self.touched = np.empty((self.workers, 0), dtype=np.int64)
+        self.coarse_grids = np.full((self.workers, 0), _EMPTY, dtype=np.int32)
+        self.coarse_sums = np.empty((self.workers, 0, 3))
+        self.coarse_touched = np.empty((self.workers, 0), dtype=np.int64)
 
-    def reserve(self, cells: int, points: int) -> None:
+    def reserve(self, cells: int, points: int, coarse_cells: int = 0) -> None:
         if cells > self.grids.shape[1]:
             self.grids = np.full((self.workers, int(cells * 1.25) + 1), _EMPTY, dtype=np.int32)
+        if coarse_cells > self.coarse_grids.shape[1]:
+            self.coarse_grids = np.full((self.workers, int(coarse_cells * 1.25) + 1), _EMPTY, dtype=np.int32)
         if points > self.sums.shape[1]:
             size = int(points * 1.5) + 1
             self.sums = np.empty((self.workers, size, 3))
             self.touched = np.empty((self.workers, size), dtype=np.int64)
+        if coarse_cells and points > self.coarse_sums.shape[1]:
+            size = int(points * 1.5) + 1
+            self.coarse_sums = np.empty((self.workers, size, 3))
+            self.coarse_touched = np.empty((self.workers, size), dtype=np.int64)
 
 
 def match_and_weigh(
@@ -358,11 +488,15 @@ def match_and_weigh(
     miss_m: float,
     line_pair_m: float,
     workspace: MatchWorkspace,
+    coarse_factor: int = 1,
+    coarse_levels: int = 2,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Match the scan end points `ends_sensor` (K, 2) against each particle's map and weigh it there.
 
     Particle i's map is map_xy[map_lo[i]:map_hi[i]] with probabilities map_p[...]; `line_pair_m` 0 scores
-    every return point to point. Returns (matched
+    every return point to point. `coarse_factor` > 1: each climb starts on a raster that many times
+    coarser (cells, widths, steps, line pairs all scaled), `coarse_levels` step halvings, then goes on at
+    the fine one from where it stopped. Returns (matched
     poses (N, 3), score at the matched pose (N,), log-likelihood there (N,), returns that found an
     occupied cell near their end point (N,)).
     """
@@ -381,7 +515,9 @@ def match_and_weigh(
     ny = np.ceil((np.maximum(wy.max(axis=1), poses[:, 1]) + margin_m - y0) / cell_m) + 1
     windows = np.column_stack([x0, y0, nx, ny])
     sizes = (map_hi - map_lo) if n else np.zeros(0, dtype=np.int64)
-    workspace.reserve(int((nx * ny).max()), int(sizes.max()) if n else 0)
+    f = max(1, int(coarse_factor))
+    coarse_cells = int(((nx // f + 1) * (ny // f + 1)).max()) if f > 1 else 0
+    workspace.reserve(int((nx * ny).max()), int(sizes.max()) if n else 0, coarse_cells)
     match = np.array(
         [
             step_xy_m,
@@ -392,6 +528,8 @@ def match_and_weigh(
             0.5 / like_sigma_m**2,
             miss_m**2,
             line_pair_m**2,
+            f,
+            coarse_levels,
         ]
     )
     out = _match_all(
@@ -411,5 +549,8 @@ def match_and_weigh(
         workspace.grids,
         workspace.sums,
         workspace.touched,
+        workspace.coarse_grids,
+        workspace.coarse_sums,
+        workspace.coarse_touched,
     )
     return out[:, :3].copy(), out[:, 3].copy(), out[:, 4].copy(), out[:, 5].astype(np.int64)

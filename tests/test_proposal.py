@@ -84,6 +84,27 @@ def test_match_recovers_a_known_pose_offset_for_every_particle():
     assert log_like[0] > 0.1 * log_like[2]
 
 
+def test_coarse_to_fine_start_recovers_an_offset_beyond_the_fine_basin():
+    # A motion sample 0.7 m and 4 deg off (a wheel slip, a sign error when backing up): the fine raster's
+    # returns find the map within a cell or two only, so its climb stops short; the coarse-to-fine start
+    # (cells, reach and steps 4 times larger, then the fine raster) reaches the pose, and as the better of
+    # the two fine scores it is the match. A start already at the pose is left where the fine climb puts it.
+    rng = np.random.default_rng(5)
+    world = _room(rng)
+    m = PointMap(world, np.full(len(world), 0.9))
+    truth = np.array([1.0, 0.5, 0.2])
+    pts = _scan_points(world, truth)
+    start = truth + np.array([[0.56, -0.42, math.radians(4.0)], [-0.42, 0.56, math.radians(-4.0)], [0.01, 0.0, 0.0]])
+    fine, fine_score, _, _ = _match([m] * 3, start, pts)
+    both, both_score, _, _ = _match([m] * 3, start, pts, coarse_factor=4)
+    for i in (0, 1):
+        assert np.hypot(*(fine[i, :2] - truth[:2])) > 0.1, fine[i]  # stuck outside the fine basin
+        assert np.hypot(*(both[i, :2] - truth[:2])) < 0.02, both[i]
+        assert abs(both[i, 2] - truth[2]) < math.radians(0.2)
+        assert both_score[i] > fine_score[i]
+    assert both_score[2] >= fine_score[2] and np.hypot(*(both[2, :2] - truth[:2])) < 0.02
+
+
 def test_match_result_does_not_depend_on_the_number_of_workers():
     rng = np.random.default_rng(3)
     world = _room(rng)

@@ -86,11 +86,15 @@ def _update_one(
     cell_top,
     touched,
     cand_cell,
+    cand_xy,
+    cand_p,
     out_xy,
     out_p,
     out_lo,
 ):
-    """Writes particle's new map into out_xy/out_p from out_lo; returns the number of points written."""
+    """Writes particle's new map into out_xy/out_p from out_lo; returns the number of points written.
+    The window's points and the new ones are staged in the worker's cand_xy/cand_p, so the output needs
+    room for the map and its new points only."""
     hit_sigma, hit_ratio, free_ratio, prune, cell_m, prior_p0, margin = (
         params[0],
         params[1],
@@ -119,7 +123,6 @@ def _update_one(
     ny = int(math.floor((y1 - y0) / cell_m)) + 1
     # 1. Outside points are copied; window points are updated and go to a candidate list.
     n_out = out_lo
-    cand_start = out_lo + (hi - lo)  # candidates are staged after the copied points' worst case
     n_cand = 0
     used = 0
     for k in range(lo, hi):
@@ -144,9 +147,9 @@ def _update_one(
         j = int(math.floor((bearing - start_rad) / inc_rad + 0.5))
         if 0 <= j < beams and r < max_range:
             p = _logit_update(p, _q(r - ranges[j], hit_sigma, hit_ratio, free_ratio, far))
-        out_xy[cand_start + n_cand, 0] = x
-        out_xy[cand_start + n_cand, 1] = y
-        out_p[cand_start + n_cand] = p
+        cand_xy[n_cand, 0] = x
+        cand_xy[n_cand, 1] = y
+        cand_p[n_cand] = p
         cand_cell[n_cand] = g  # its cell, for step 3
         n_cand += 1
     # 2. New points around every return: z_hat ~ N(z, sigma_r), bearing ~ N(b, sigma_b); the small bearing
@@ -168,20 +171,20 @@ def _update_one(
             g = int(math.floor((x - x0) / cell_m)) * ny + int(math.floor((y - y0) / cell_m))
             prior = cell_sum[g] / cell_count[g] if cell_count[g] > 0 else prior_p0
             p = _logit_update(prior, _q(z_hat - ranges[j], hit_sigma, hit_ratio, free_ratio, far))
-            out_xy[cand_start + n_cand, 0] = x
-            out_xy[cand_start + n_cand, 1] = y
-            out_p[cand_start + n_cand] = p
+            cand_xy[n_cand, 0] = x
+            cand_xy[n_cand, 1] = y
+            cand_p[n_cand] = p
             cand_cell[n_cand] = g
             n_cand += 1
     for u in range(used):
         cell_count[touched[u]] = 0
     # 3. Prune, then keep the most probable points of every cell.
     used = 0
-    for k in range(cand_start, cand_start + n_cand):
-        p = out_p[k]
+    for k in range(n_cand):
+        p = cand_p[k]
         if p < prune:
             continue
-        g = cand_cell[k - cand_start]  # the cell steps 1 and 2 found for it
+        g = cand_cell[k]  # the cell steps 1 and 2 found for it
         if cell_count[g] == 0:
             touched[used] = g
             used += 1
@@ -192,20 +195,20 @@ def _update_one(
         else:  # replace the least probable kept point if this one is more probable
             worst = 0
             for e in range(1, keep_per_cell):
-                if out_p[cell_top[g, e]] < out_p[cell_top[g, worst]]:
+                if cand_p[cell_top[g, e]] < cand_p[cell_top[g, worst]]:
                     worst = e
-            if p > out_p[cell_top[g, worst]]:
+            if p > cand_p[cell_top[g, worst]]:
                 cell_top[g, worst] = k
     for u in range(used):  # mark the kept points (p + 2), then compact them forwards after the copied ones
         g = touched[u]
         for e in range(cell_count[g]):
-            out_p[cell_top[g, e]] += 2.0
+            cand_p[cell_top[g, e]] += 2.0
         cell_count[g] = 0
-    for k in range(cand_start, cand_start + n_cand):
-        if out_p[k] >= 2.0:
-            out_xy[n_out, 0] = out_xy[k, 0]
-            out_xy[n_out, 1] = out_xy[k, 1]
-            out_p[n_out] = out_p[k] - 2.0
+    for k in range(n_cand):
+        if cand_p[k] >= 2.0:
+            out_xy[n_out, 0] = cand_xy[k, 0]
+            out_xy[n_out, 1] = cand_xy[k, 1]
+            out_p[n_out] = cand_p[k] - 2.0
             n_out += 1
     return n_out - out_lo
 
@@ -230,6 +233,8 @@ def _update_all(
     cell_top,
     touched,
     cand_cell,
+    cand_xy,
+    cand_p,
     out_lo,
     out_xy,
     out_p,
@@ -262,6 +267,8 @@ def _update_all(
                 cell_top[w],
                 touched[w],
                 cand_cell[w],
+                cand_xy[w],
+                cand_p[w],
                 out_xy,
                 out_p,
                 out_lo[i],
@@ -309,6 +316,8 @@ class UpdateWorkspace:
         self.cell_top = np.zeros((self.workers, cells, self.keep), dtype=np.int32)
         self.touched = np.zeros((self.workers, points), dtype=np.int64)
         self.cand_cell = np.zeros((self.workers, points), dtype=np.int64)  # each candidate's cell
+        self.cand_xy = np.zeros((self.workers, points, 2))  # the candidates: window points and new ones
+        self.cand_p = np.zeros((self.workers, points))
 
     def reserve(self, cells: int, points: int) -> None:
         if cells > self.cell_count.shape[1] or points > self.touched.shape[1]:
@@ -352,8 +361,8 @@ def update_maps(
     ret_idx = np.flatnonzero(returns).astype(np.int64)
     sizes = np.asarray(map_hi - map_lo, dtype=np.int64)
     new = len(ret_idx) * noise.shape[2]
-    # Particle i writes its copied points and, after them, its candidates: 2 x its map + its new points.
-    out_lo = np.concatenate([[0], np.cumsum(2 * sizes + new)]).astype(np.int64)
+    # Particle i writes its copied points, then the candidates it keeps: at most its map + its new points.
+    out_lo = np.concatenate([[0], np.cumsum(sizes + new)]).astype(np.int64)
     # The window is the box of the returns plus a margin: its cells bound the raster.
     rng = ranges_m[ret_idx] if len(ret_idx) else np.zeros(1)
     span = 2 * (float(rng.max()) + hit_sigma_m * 3) + cell_size_m
@@ -392,6 +401,8 @@ def update_maps(
         workspace.cell_top,
         workspace.touched,
         workspace.cand_cell,
+        workspace.cand_xy,
+        workspace.cand_p,
         out_lo,
         out_xy,
         out_p,
