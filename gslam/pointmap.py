@@ -16,6 +16,11 @@ import numpy as np
 if TYPE_CHECKING:
     from scipy.spatial import cKDTree
 
+MAP_DTYPE = np.float32
+"""Storage of the map points and probabilities the compiled kernels read and write (computation is in
+float64). float32 resolves a point to 1.2e-4 m at 1 km from the origin (the matcher's cells are 0.05 m)
+and p to 6e-8, and halves the maps' memory, which on a long outdoor log is most of the filter's: the maps of all
+particles, twice over while an update writes the new ones beside the old (docs/SPEED.md)."""
 _CELL_BITS = 20  # per axis: |x| / cell_size < 2^19 (131 km at 0.25 m)
 _OWNER_SHIFT = 2 * _CELL_BITS
 

@@ -32,6 +32,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from gslam.pointmap import MAP_DTYPE
 from gslam.workqueue import next_index
 
 _EMPTY = -1
@@ -533,8 +534,8 @@ def match_and_weigh(
         ]
     )
     out = _match_all(
-        np.ascontiguousarray(map_xy, dtype=float),
-        np.ascontiguousarray(map_p, dtype=float),
+        np.ascontiguousarray(map_xy, dtype=MAP_DTYPE),
+        np.ascontiguousarray(map_p, dtype=MAP_DTYPE),
         np.asarray(map_lo, dtype=np.int64),
         np.asarray(map_hi, dtype=np.int64),
         poses,

@@ -31,7 +31,7 @@ from numba import njit, prange
 
 from gslam.config import FilterConfig
 from gslam.motion import wrap_angle_scalar
-from gslam.pointmap import PointMap
+from gslam.pointmap import MAP_DTYPE, PointMap
 from gslam.scan import Scan
 from gslam.workqueue import next_index
 
@@ -302,7 +302,7 @@ class UpdateWorkspace:
             if len(p) >= rows and sys.getrefcount(xy) == 2 and sys.getrefcount(p) == 2:
                 return xy, p
         size = int(rows * 1.25) + 1
-        return np.empty((size, 2)), np.empty(size)
+        return np.empty((size, 2), dtype=MAP_DTYPE), np.empty(size, dtype=MAP_DTYPE)
 
     def release(self, xy: np.ndarray, p: np.ndarray) -> None:
         """Give back a buffer `take` returned, once the maps written to it are replaced."""
@@ -321,7 +321,30 @@ class UpdateWorkspace:
 
     def reserve(self, cells: int, points: int) -> None:
         if cells > self.cell_count.shape[1] or points > self.touched.shape[1]:
-            self._alloc(max(int(cells * 1.25) + 1, self.cell_count.shape[1]), max(points * 2, self.touched.shape[1]))
+            self._alloc(
+                max(int(cells * 1.25) + 1, self.cell_count.shape[1]),
+                max(int(points * 1.25) + 1, self.touched.shape[1]),
+            )
+
+
+def window_cells(
+    poses: np.ndarray, ranges_m: np.ndarray, bearings_rad: np.ndarray, margin_m: float, cell_m: float
+) -> int:
+    """The most cells any particle's window spans (the box of its pose and its returns' end points, grown
+    by `margin_m`, as `_update_one` lays it out), plus one row and column either way for rounding: the
+    size of the cell arrays. A scan seen over half a turn fills half the square of twice its range."""
+    if len(poses) == 0:
+        return 1
+    heading = poses[:, 2, None] + bearings_rad[None, :]
+    ex = poses[:, 0, None] + ranges_m[None, :] * np.cos(heading)
+    ey = poses[:, 1, None] + ranges_m[None, :] * np.sin(heading)
+    x0 = np.minimum(ex.min(axis=1, initial=np.inf), poses[:, 0]) - margin_m
+    y0 = np.minimum(ey.min(axis=1, initial=np.inf), poses[:, 1]) - margin_m
+    x1 = np.maximum(ex.max(axis=1, initial=-np.inf), poses[:, 0]) + margin_m
+    y1 = np.maximum(ey.max(axis=1, initial=-np.inf), poses[:, 1]) + margin_m
+    nx = np.floor((x1 - x0) / cell_m) + 4  # the kernel aligns x0 down to a cell edge: at most one more
+    ny = np.floor((y1 - y0) / cell_m) + 4
+    return int((nx * ny).max())
 
 
 def update_maps(
@@ -363,11 +386,12 @@ def update_maps(
     new = len(ret_idx) * noise.shape[2]
     # Particle i writes its copied points, then the candidates it keeps: at most its map + its new points.
     out_lo = np.concatenate([[0], np.cumsum(sizes + new)]).astype(np.int64)
-    # The window is the box of the returns plus a margin: its cells bound the raster.
-    rng = ranges_m[ret_idx] if len(ret_idx) else np.zeros(1)
-    span = 2 * (float(rng.max()) + hit_sigma_m * 3) + cell_size_m
-    cells = int((span / cell_size_m + 2) ** 2)
-    workspace.reserve(cells, int(sizes.max() if n else 0) + new)
+    workspace.reserve(
+        window_cells(
+            poses, ranges_m[ret_idx], start_angle_rad + angle_increment_rad * ret_idx, 3 * hit_sigma_m, cell_size_m
+        ),
+        int(sizes.max() if n else 0) + new,
+    )
     params = np.array(
         [
             hit_sigma_m,
@@ -383,8 +407,8 @@ def update_maps(
     )
     out_xy, out_p = workspace.take(int(out_lo[-1]))
     counts = _update_all(
-        np.ascontiguousarray(map_xy, dtype=float),
-        np.ascontiguousarray(map_p, dtype=float),
+        np.ascontiguousarray(map_xy, dtype=MAP_DTYPE),
+        np.ascontiguousarray(map_p, dtype=MAP_DTYPE),
         np.asarray(map_lo, dtype=np.int64),
         np.asarray(map_hi, dtype=np.int64),
         np.ascontiguousarray(poses, dtype=float),
