@@ -207,6 +207,8 @@ class GSlamFilter:
             workspace=self._workspace,
             coarse_factor=cfg.match_coarse_factor,
             coarse_levels=cfg.match_coarse_levels,
+            coarse_stride=cfg.match_coarse_stride,
+            coarse_min_gain=cfg.match_coarse_min_gain,
         )
         if not climb:
             return 0, log_like

@@ -179,6 +179,62 @@ def _rasterise(map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums,
     return used
 
 
+@njit(cache=True, inline="always")
+def _rasterise_both(
+    map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched, factor, cny, cgrid, csums, ctouched
+):
+    """`_rasterise` into the fine raster and, in the same pass over the map, into the raster `factor` times
+    coarser with the same origin (cny rows). Returns (fine cells, coarse cells) occupied."""
+    used = 0
+    cused = 0
+    for k in range(lo, hi):
+        if map_p[k] < min_p:
+            continue
+        cx = int(math.floor((map_xy[k, 0] - x0) / cell_m))
+        cy = int(math.floor((map_xy[k, 1] - y0) / cell_m))
+        if cx < 0 or cx >= nx or cy < 0 or cy >= ny:
+            continue
+        for level in range(2):
+            if level == 0:
+                g = cx * ny + cy
+                slot = grid[g]
+            else:
+                g = (cx // factor) * cny + cy // factor
+                slot = cgrid[g]
+            if slot == _EMPTY:
+                if level == 0:
+                    slot = used
+                    grid[g] = slot
+                    touched[slot] = g
+                    used += 1
+                    sums[slot, 0] = 0.0
+                    sums[slot, 1] = 0.0
+                    sums[slot, 2] = 0.0
+                else:
+                    slot = cused
+                    cgrid[g] = slot
+                    ctouched[slot] = g
+                    cused += 1
+                    csums[slot, 0] = 0.0
+                    csums[slot, 1] = 0.0
+                    csums[slot, 2] = 0.0
+            if level == 0:
+                sums[slot, 0] += map_xy[k, 0]
+                sums[slot, 1] += map_xy[k, 1]
+                sums[slot, 2] += 1.0
+            else:
+                csums[slot, 0] += map_xy[k, 0]
+                csums[slot, 1] += map_xy[k, 1]
+                csums[slot, 2] += 1.0
+    for slot in range(used):
+        sums[slot, 0] /= sums[slot, 2]
+        sums[slot, 1] /= sums[slot, 2]
+    for slot in range(cused):
+        csums[slot, 0] /= csums[slot, 2]
+        csums[slot, 1] /= csums[slot, 2]
+    return used, cused
+
+
 @njit(cache=True)
 def _climb(
     pose,
@@ -264,6 +320,9 @@ def _match_one(
     ends,
     dirs,
     score_inv,
+    coarse_ends,
+    coarse_dirs,
+    coarse_inv,
     window,
     cell_m,
     kernel,
@@ -293,7 +352,17 @@ def _match_one(
     pair_d2 = match[7]
     factor = int(match[8])
     pose = pose0.copy()
-    used = _rasterise(map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched)
+    coarse = factor > 1 and max_iter > 0
+    cc = cell_m * factor
+    cnx, cny = nx // factor + 1, ny // factor + 1
+    cused = 0
+    if coarse:
+        used, cused = _rasterise_both(
+            map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched,
+            factor, cny, coarse_grid, coarse_sums, coarse_touched,
+        )  # fmt: skip
+    else:
+        used = _rasterise(map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched)
     mean_xy = sums
     current = 0.0
     if used:
@@ -317,19 +386,21 @@ def _match_one(
             levels,
             max_iter,
         )
-    if used and factor > 1 and max_iter > 0:
+    if used and coarse and cused:
         # a second start, coarse to fine: climb from the motion sample on a raster `factor` times coarser
-        # (every width, reach and step scaled by it, so a return finds the map up to `factor` times further
-        # away), then on the fine raster from there; the better of the two fine scores is the match
-        cc = cell_m * factor
-        cnx, cny = nx // factor + 1, ny // factor + 1
-        cused = _rasterise(map_xy, map_p, lo, hi, min_p, x0, y0, cnx, cny, cc, coarse_grid, coarse_sums, coarse_touched)
+        # (every width, reach and translation step scaled by it, so a return finds the map up to `factor`
+        # times further away). Where it ends within a coarse cell and factor / 2 angular steps of the fine climb's
+        # result, the coarse raster cannot tell the two apart and the fine result stands; else the fine
+        # raster is climbed from there too, and its result is the match when its fine score is higher by
+        # at least match[10] x the returns (a jump against the odometry must be paid for by returns it
+        # explains).
         second = pose0.copy()
         f2 = float(factor * factor)
+        min_gain = match[10] * ends.shape[0]
         _climb(
             second,
-            ends,
-            dirs,
+            coarse_ends,
+            coarse_dirs,
             x0,
             y0,
             cnx,
@@ -338,44 +409,46 @@ def _match_one(
             kernel,
             coarse_grid,
             coarse_sums,
-            score_inv / f2,
+            coarse_inv / f2,
             pair_d2 * f2,
             inv_line / f2,
             step_xy * factor,
-            step_phi * factor,
+            step_phi,
             int(match[9]),
             max_iter,
         )
-        for slot in range(cused):
-            coarse_grid[coarse_touched[slot]] = _EMPTY
-        score2 = _climb(
-            second,
-            ends,
-            dirs,
-            x0,
-            y0,
-            nx,
-            ny,
-            cell_m,
-            kernel,
-            grid,
-            mean_xy,
-            score_inv,
-            pair_d2,
-            inv_line,
-            step_xy,
-            step_phi,
-            levels,
-            max_iter,
-        )
-        if score2 > current:
-            current = score2
-            pose[:] = second
+        dx, dy = second[0] - pose[0], second[1] - pose[1]
+        if dx * dx + dy * dy > cc * cc or abs(second[2] - pose[2]) > 0.5 * factor * step_phi:
+            score2 = _climb(
+                second,
+                ends,
+                dirs,
+                x0,
+                y0,
+                nx,
+                ny,
+                cell_m,
+                kernel,
+                grid,
+                mean_xy,
+                score_inv,
+                pair_d2,
+                inv_line,
+                step_xy,
+                step_phi,
+                levels,
+                max_iter,
+            )
+            if score2 > current + min_gain:
+                current = score2
+                pose[:] = second
     like, hits = _log_likelihood(
         pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, like_inv, miss_d2, pair_d2
     )
     for slot in range(used):
         grid[touched[slot]] = _EMPTY
+    for slot in range(cused):
+        coarse_grid[coarse_touched[slot]] = _EMPTY
     out[i, 0], out[i, 1], out[i, 2] = pose[0], pose[1], pose[2]
     out[i, 3] = current
     out[i, 4] = like
@@ -392,6 +465,9 @@ def _match_all(
     ends,
     dirs,
     score_inv,
+    coarse_ends,
+    coarse_dirs,
+    coarse_inv,
     windows,
     cell_m,
     kernel,
@@ -423,6 +499,9 @@ def _match_all(
                 ends,
                 dirs,
                 score_inv,
+                coarse_ends,
+                coarse_dirs,
+                coarse_inv,
                 windows[i],
                 cell_m,
                 kernel,
@@ -491,13 +570,16 @@ def match_and_weigh(
     workspace: MatchWorkspace,
     coarse_factor: int = 1,
     coarse_levels: int = 2,
+    coarse_stride: int = 1,
+    coarse_min_gain: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Match the scan end points `ends_sensor` (K, 2) against each particle's map and weigh it there.
 
     Particle i's map is map_xy[map_lo[i]:map_hi[i]] with probabilities map_p[...]; `line_pair_m` 0 scores
     every return point to point. `coarse_factor` > 1: each climb starts on a raster that many times
-    coarser (cells, widths, steps, line pairs all scaled), `coarse_levels` step halvings, then goes on at
-    the fine one from where it stopped. Returns (matched
+    coarser (cells, widths, steps, line pairs all scaled), `coarse_levels` step halvings, on every
+    `coarse_stride`-th return, then goes on at the fine one from where it stopped; that result replaces the
+    fine climb's from the motion sample when it scores `coarse_min_gain` x the returns higher. Returns (matched
     poses (N, 3), score at the matched pose (N,), log-likelihood there (N,), returns that found an
     occupied cell near their end point (N,)).
     """
@@ -531,8 +613,12 @@ def match_and_weigh(
             line_pair_m**2,
             f,
             coarse_levels,
+            coarse_min_gain,
         ]
     )
+    dirs = ends / np.maximum(rng, 1e-12)[:, None]
+    score_inv = 0.5 / (score_sigma_m**2 + (rng * score_sigma_rad) ** 2)
+    stride = max(1, int(coarse_stride))
     out = _match_all(
         np.ascontiguousarray(map_xy, dtype=MAP_DTYPE),
         np.ascontiguousarray(map_p, dtype=MAP_DTYPE),
@@ -540,8 +626,11 @@ def match_and_weigh(
         np.asarray(map_hi, dtype=np.int64),
         poses,
         ends,
-        ends / np.maximum(rng, 1e-12)[:, None],
-        0.5 / (score_sigma_m**2 + (rng * score_sigma_rad) ** 2),
+        dirs,
+        score_inv,
+        np.ascontiguousarray(ends[::stride]),
+        np.ascontiguousarray(dirs[::stride]),
+        np.ascontiguousarray(score_inv[::stride]),
         windows,
         float(cell_m),
         int(kernel),
