@@ -139,7 +139,7 @@ class FilterConfig:
     match_coarse_factor: int = 4
     """A second start for the matcher, coarse to fine: besides the fine climb from the motion sample, a climb
     on a raster this many times coarser than match_cell_m (the score's width, the kernel's reach, the
-    translation steps and the line pairs scaled alike; the angular step kept), then on the fine raster
+    steps and the line pairs scaled alike), then on the fine raster
     from where it stopped (as multi-resolution matchers do: Olson 2009, Hector, Cartographer). Its returns
     find the map up to this many times further away, so an odometry error of a few tenths of a metre (a
     slip, a sign error when reversing) is still inside its basin. It is climbed on the fine raster only
@@ -147,15 +147,14 @@ class FilterConfig:
     that only by a clear margin (match_coarse_min_gain). 1: the fine climb only (docs/CHOICES.md)."""
     match_coarse_levels: int = 2
     """Step halvings of the coarse climb (log2 of match_coarse_factor brings its steps to the fine ones)."""
-    match_coarse_stride: int = 2
-    """The coarse climb uses every k-th of the matcher's returns: at 4 times the cell it needs to land in the
-    fine climb's basin, not to resolve the beams' spacing, and its cost falls k-fold (docs/CHOICES.md)."""
-    match_coarse_min_gain: float = 0.1
+    match_coarse_stride: int = 1
+    """The coarse climb uses every k-th of the matcher's returns (1: all). Every 2nd was cheaper by little
+    (the coarse climb costs a tenth of the fine one) and broke a loop on the Freiburg campus."""
+    match_coarse_min_gain: float = 0.05
     """The coarse start's match replaces the fine climb's only when its score is higher by this fraction of
     the returns. Where a scan has few returns (68 at the Car Park's first updates), two poses half a metre
     apart along the track can score alike, and a jump against the odometry must be paid for by returns it
-    explains: the Car Park's first updates gained 5.6 % of the returns by one (a wrong one), the slips the
-    coarse start recovers on belgioioso a median of 42 % (docs/CHOICES.md)."""
+    explains; the slips the coarse start recovers on belgioioso gain a median of 42 % (docs/CHOICES.md)."""
     match_min_p: float = 0.5
     """Map points with at least this probability take part in matching and weighing."""
     match_step_xy_m: float = 0.05
@@ -273,7 +272,6 @@ _LIMITS: dict[str, tuple[float, float, bool]] = {
     "match_coarse_factor": (1, 64, True),
     "match_coarse_levels": (0, 64, True),
     "match_coarse_stride": (1, 10_000, True),
-    "match_coarse_min_gain": (0, math.inf, False),
     "prior_neighbours": (1, 64, True),
     "prior_radius_m": (0, math.inf, False),
     "prior_p0": (0, math.inf, False),

@@ -388,7 +388,7 @@ def _match_one(
         )
     if used and coarse and cused:
         # a second start, coarse to fine: climb from the motion sample on a raster `factor` times coarser
-        # (every width, reach and translation step scaled by it, so a return finds the map up to `factor`
+        # (every width, reach and step scaled by it, so a return finds the map up to `factor`
         # times further away). Where it ends within a coarse cell and factor / 2 angular steps of the fine climb's
         # result, the coarse raster cannot tell the two apart and the fine result stands; else the fine
         # raster is climbed from there too, and its result is the match when its fine score is higher by
@@ -413,7 +413,7 @@ def _match_one(
             pair_d2 * f2,
             inv_line / f2,
             step_xy * factor,
-            step_phi,
+            step_phi * factor,
             int(match[9]),
             max_iter,
         )
