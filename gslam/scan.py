@@ -81,6 +81,18 @@ def inverse_measure(poses: np.ndarray, range_m: np.ndarray, bearing_rad: np.ndar
     return np.stack([poses[..., 0] + range_m * np.cos(heading), poses[..., 1] + range_m * np.sin(heading)], axis=-1)
 
 
+def window_boxes(
+    poses: np.ndarray, ex: np.ndarray, ey: np.ndarray, margin_m: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(x0, y0, x1, y1), each (N,): the box of each pose and its returns' end points (ex, ey: (N, K), world
+    frame), grown by `margin_m`: the window the compiled kernels work in."""
+    x0 = np.minimum(ex.min(axis=1, initial=np.inf), poses[:, 0]) - margin_m
+    y0 = np.minimum(ey.min(axis=1, initial=np.inf), poses[:, 1]) - margin_m
+    x1 = np.maximum(ex.max(axis=1, initial=-np.inf), poses[:, 0]) + margin_m
+    y1 = np.maximum(ey.max(axis=1, initial=-np.inf), poses[:, 1]) + margin_m
+    return x0, y0, x1, y1
+
+
 def transform_points(pose: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Sensor-frame points (K, 2) to the world frame for one pose (x, y, phi)."""
     c, s = np.cos(pose[2]), np.sin(pose[2])

@@ -33,6 +33,7 @@ import numpy as np
 from numba import njit, prange
 
 from gslam.pointmap import MAP_DTYPE
+from gslam.scan import window_boxes
 from gslam.workqueue import next_index
 
 _EMPTY = -1
@@ -149,6 +150,33 @@ def _log_likelihood(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean
 
 
 @njit(cache=True, inline="always")
+def _add_point(x, y, g, grid, sums, touched, used):
+    """Add the point (x, y) to raster cell g (its slot claimed and zeroed on first use); returns the number
+    of occupied cells."""
+    slot = grid[g]
+    if slot == _EMPTY:
+        slot = used
+        grid[g] = slot
+        touched[slot] = g
+        sums[slot, 0] = 0.0
+        sums[slot, 1] = 0.0
+        sums[slot, 2] = 0.0
+        used += 1
+    sums[slot, 0] += x
+    sums[slot, 1] += y
+    sums[slot, 2] += 1.0
+    return used
+
+
+@njit(cache=True, inline="always")
+def _to_means(sums, used):
+    """sums[slot, :2] from the sums of a cell's points to their mean."""
+    for slot in range(used):
+        sums[slot, 0] /= sums[slot, 2]
+        sums[slot, 1] /= sums[slot, 2]
+
+
+@njit(cache=True, inline="always")
 def _rasterise(map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched):
     """Rasterise the points lo:hi with p >= min_p inside the window into `grid` (slot per occupied cell,
     -1 empty); sums[slot, :2] ends as the mean of the cell's points. Returns the occupied cells."""
@@ -160,22 +188,8 @@ def _rasterise(map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums,
         cy = int(math.floor((map_xy[k, 1] - y0) / cell_m))
         if cx < 0 or cx >= nx or cy < 0 or cy >= ny:
             continue
-        g = cx * ny + cy
-        slot = grid[g]
-        if slot == _EMPTY:
-            slot = used
-            grid[g] = slot
-            touched[slot] = g
-            sums[slot, 0] = 0.0
-            sums[slot, 1] = 0.0
-            sums[slot, 2] = 0.0
-            used += 1
-        sums[slot, 0] += map_xy[k, 0]
-        sums[slot, 1] += map_xy[k, 1]
-        sums[slot, 2] += 1.0
-    for slot in range(used):
-        sums[slot, 0] /= sums[slot, 2]
-        sums[slot, 1] /= sums[slot, 2]
+        used = _add_point(map_xy[k, 0], map_xy[k, 1], cx * ny + cy, grid, sums, touched, used)
+    _to_means(sums, used)
     return used
 
 
@@ -194,44 +208,12 @@ def _rasterise_both(
         cy = int(math.floor((map_xy[k, 1] - y0) / cell_m))
         if cx < 0 or cx >= nx or cy < 0 or cy >= ny:
             continue
-        for level in range(2):
-            if level == 0:
-                g = cx * ny + cy
-                slot = grid[g]
-            else:
-                g = (cx // factor) * cny + cy // factor
-                slot = cgrid[g]
-            if slot == _EMPTY:
-                if level == 0:
-                    slot = used
-                    grid[g] = slot
-                    touched[slot] = g
-                    used += 1
-                    sums[slot, 0] = 0.0
-                    sums[slot, 1] = 0.0
-                    sums[slot, 2] = 0.0
-                else:
-                    slot = cused
-                    cgrid[g] = slot
-                    ctouched[slot] = g
-                    cused += 1
-                    csums[slot, 0] = 0.0
-                    csums[slot, 1] = 0.0
-                    csums[slot, 2] = 0.0
-            if level == 0:
-                sums[slot, 0] += map_xy[k, 0]
-                sums[slot, 1] += map_xy[k, 1]
-                sums[slot, 2] += 1.0
-            else:
-                csums[slot, 0] += map_xy[k, 0]
-                csums[slot, 1] += map_xy[k, 1]
-                csums[slot, 2] += 1.0
-    for slot in range(used):
-        sums[slot, 0] /= sums[slot, 2]
-        sums[slot, 1] /= sums[slot, 2]
-    for slot in range(cused):
-        csums[slot, 0] /= csums[slot, 2]
-        csums[slot, 1] /= csums[slot, 2]
+        used = _add_point(map_xy[k, 0], map_xy[k, 1], cx * ny + cy, grid, sums, touched, used)
+        cused = _add_point(
+            map_xy[k, 0], map_xy[k, 1], (cx // factor) * cny + cy // factor, cgrid, csums, ctouched, cused
+        )
+    _to_means(sums, used)
+    _to_means(csums, cused)
     return used, cused
 
 
@@ -337,7 +319,7 @@ def _match_one(
     out,
 ):
     """Rasterise particle i's window of its map, climb the score (from the motion sample and, when
-    match[8] > 1, also coarse to fine from it, keeping the better), weigh the scan; reset the rasters."""
+    match[8] > 1, also coarse to fine from it: see below), weigh the scan; reset the rasters."""
     x0, y0 = window[0], window[1]
     nx, ny = int(window[2]), int(window[3])
     step_xy, step_phi, levels, max_iter, like_inv, miss_d2 = (
@@ -364,10 +346,10 @@ def _match_one(
     else:
         used = _rasterise(map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched)
     mean_xy = sums
-    current = 0.0
-    if used:
-        current = _climb(
-            pose,
+
+    def fine_climb(start):  # the fine climb from `start`, in place; returns its score
+        return _climb(
+            start,
             ends,
             dirs,
             x0,
@@ -386,6 +368,8 @@ def _match_one(
             levels,
             max_iter,
         )
+
+    current = fine_climb(pose) if used else 0.0
     if used and coarse and cused:
         # a second start, coarse to fine: climb from the motion sample on a raster `factor` times coarser
         # (every width, reach and step scaled by it, so a return finds the map up to `factor`
@@ -419,26 +403,7 @@ def _match_one(
         )
         dx, dy = second[0] - pose[0], second[1] - pose[1]
         if dx * dx + dy * dy > cc * cc or abs(second[2] - pose[2]) > 0.5 * factor * step_phi:
-            score2 = _climb(
-                second,
-                ends,
-                dirs,
-                x0,
-                y0,
-                nx,
-                ny,
-                cell_m,
-                kernel,
-                grid,
-                mean_xy,
-                score_inv,
-                pair_d2,
-                inv_line,
-                step_xy,
-                step_phi,
-                levels,
-                max_iter,
-            )
+            score2 = fine_climb(second)
             if score2 > current + min_gain:
                 current = score2
                 pose[:] = second
@@ -576,10 +541,11 @@ def match_and_weigh(
     """Match the scan end points `ends_sensor` (K, 2) against each particle's map and weigh it there.
 
     Particle i's map is map_xy[map_lo[i]:map_hi[i]] with probabilities map_p[...]; `line_pair_m` 0 scores
-    every return point to point. `coarse_factor` > 1: each climb starts on a raster that many times
-    coarser (cells, widths, steps, line pairs all scaled), `coarse_levels` step halvings, on every
-    `coarse_stride`-th return, then goes on at the fine one from where it stopped; that result replaces the
-    fine climb's from the motion sample when it scores `coarse_min_gain` x the returns higher. Returns (matched
+    every return point to point. `coarse_factor` > 1: a second start, climbed from the motion sample on a
+    raster that many times coarser (cells, widths, steps, line pairs all scaled), `coarse_levels` step
+    halvings, on every `coarse_stride`-th return; where it ends more than a coarse cell (or factor / 2
+    angular steps) from the fine climb's result it is climbed on the fine raster too, and replaces that
+    result when it scores `coarse_min_gain` x the returns higher. Returns (matched
     poses (N, 3), score at the matched pose (N,), log-likelihood there (N,), returns that found an
     occupied cell near their end point (N,)).
     """
@@ -592,10 +558,9 @@ def match_and_weigh(
     c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
     wx = poses[:, 0, None] + c * ends[:, 0] - s * ends[:, 1]
     wy = poses[:, 1, None] + s * ends[:, 0] + c * ends[:, 1]
-    x0 = np.minimum(wx.min(axis=1), poses[:, 0]) - margin_m
-    y0 = np.minimum(wy.min(axis=1), poses[:, 1]) - margin_m
-    nx = np.ceil((np.maximum(wx.max(axis=1), poses[:, 0]) + margin_m - x0) / cell_m) + 1
-    ny = np.ceil((np.maximum(wy.max(axis=1), poses[:, 1]) + margin_m - y0) / cell_m) + 1
+    x0, y0, x1, y1 = window_boxes(poses, wx, wy, margin_m)
+    nx = np.ceil((x1 - x0) / cell_m) + 1
+    ny = np.ceil((y1 - y0) / cell_m) + 1
     windows = np.column_stack([x0, y0, nx, ny])
     sizes = (map_hi - map_lo) if n else np.zeros(0, dtype=np.int64)
     f = max(1, int(coarse_factor))

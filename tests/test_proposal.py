@@ -87,8 +87,8 @@ def test_match_recovers_a_known_pose_offset_for_every_particle():
 def test_coarse_to_fine_start_recovers_an_offset_beyond_the_fine_basin():
     # A motion sample 0.7 m and 4 deg off (a wheel slip, a sign error when backing up): the fine raster's
     # returns find the map within a cell or two only, so its climb stops short; the coarse-to-fine start
-    # (cells, reach and steps 4 times larger, then the fine raster) reaches the pose, and as the better of
-    # the two fine scores it is the match. A start already at the pose is left where the fine climb puts it.
+    # (cells, reach and steps 4 times larger, then the fine raster) reaches the pose, and with its clearly
+    # higher fine score it is the match. A start already at the pose is left where the fine climb puts it.
     rng = np.random.default_rng(5)
     world = _room(rng)
     m = PointMap(world, np.full(len(world), 0.9))

@@ -32,7 +32,7 @@ from numba import njit, prange
 from gslam.config import FilterConfig
 from gslam.motion import wrap_angle_scalar
 from gslam.pointmap import MAP_DTYPE, PointMap
-from gslam.scan import Scan
+from gslam.scan import Scan, inverse_measure, window_boxes
 from gslam.workqueue import next_index
 
 
@@ -335,13 +335,8 @@ def window_cells(
     size of the cell arrays. A scan seen over half a turn fills half the square of twice its range."""
     if len(poses) == 0:
         return 1
-    heading = poses[:, 2, None] + bearings_rad[None, :]
-    ex = poses[:, 0, None] + ranges_m[None, :] * np.cos(heading)
-    ey = poses[:, 1, None] + ranges_m[None, :] * np.sin(heading)
-    x0 = np.minimum(ex.min(axis=1, initial=np.inf), poses[:, 0]) - margin_m
-    y0 = np.minimum(ey.min(axis=1, initial=np.inf), poses[:, 1]) - margin_m
-    x1 = np.maximum(ex.max(axis=1, initial=-np.inf), poses[:, 0]) + margin_m
-    y1 = np.maximum(ey.max(axis=1, initial=-np.inf), poses[:, 1]) + margin_m
+    ends = inverse_measure(poses[:, None, :], ranges_m[None, :], bearings_rad[None, :])
+    x0, y0, x1, y1 = window_boxes(poses, ends[..., 0], ends[..., 1], margin_m)
     nx = np.floor((x1 - x0) / cell_m) + 4  # the kernel aligns x0 down to a cell edge: at most one more
     ny = np.floor((y1 - y0) / cell_m) + 4
     return int((nx * ny).max())
