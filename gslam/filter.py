@@ -81,6 +81,7 @@ class GSlamFilter:
         self._filled = self.poses.copy()  # noise-free motion since the last update (recorded for skipped scans)
         self._travel_m = 0.0  # path length and turn of the noise-free motion since the last update
         self._turn_rad = 0.0
+        self._fit_reference = 0.0  # median fit (score per return) of the previous update's matches
 
     # ------------------------------------------------------------------------------------------
     def best_particle(self) -> int:
@@ -209,9 +210,13 @@ class GSlamFilter:
             coarse_levels=cfg.match_coarse_levels,
             coarse_stride=cfg.match_coarse_stride,
             coarse_min_gain=cfg.match_coarse_min_gain,
+            coarse_depth=cfg.match_coarse_depth,
+            coarse_gate=cfg.match_coarse_gate,
+            coarse_reference=self._fit_reference,
         )
         if not climb:
             return 0, log_like
+        self._fit_reference = float(np.median(score)) / max(1, len(pts))
         matched = (score > cfg.match_min_score * len(pts)) & (hits > 0)
         noise = self.rng.standard_normal((n, 3)) * [
             cfg.proposal_sigma_xy_m,

@@ -18,6 +18,10 @@ GMapping's scan matcher (Grisetti, Stachniss & Burgard 2007; openslam_gmapping `
   every r x the angle between beams); line returns are scored with sigma_s.
 - The pose climbs that score from the motion sample: one step forwards and backwards in x, y and phi,
   move to the best while it improves, halve the steps when it does not, `levels` times.
+- A second start, coarse to fine, for the particles whose climb fits clearly worse than the best one's
+  (`coarse_gate`): the same climb from the motion sample down a pyramid of coarser rasters, then on the
+  fine one, kept when it explains clearly more of the returns (`_coarse_start_one`). The particles are
+  climbed first, all of them, then the second start runs for the ones the gate picks.
 - The log-likelihood of the scan at the matched pose is sum_j -d_j^2 / 2 sigma_l^2, with d_j = `miss_m`
   for a return that finds no occupied cell near it (GMapping's `nullLikelihood`).
 
@@ -194,13 +198,31 @@ def _rasterise(map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums,
 
 
 @njit(cache=True, inline="always")
-def _rasterise_both(
-    map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched, factor, cny, cgrid, csums, ctouched
+def _level_shape(nx, ny, factor, level):
+    """(factor of, columns, rows) of pyramid level `level` (0: `factor` times coarser than the fine raster,
+    1: factor^2, ...) over a fine window of nx x ny cells, same origin."""
+    fl = factor ** (level + 1)
+    return fl, nx // fl + 1, ny // fl + 1
+
+
+@njit(cache=True, inline="always")
+def _rasterise_pyramid(
+    map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched, factor, cgrid, csums, ctouched, cused
 ):
-    """`_rasterise` into the fine raster and, in the same pass over the map, into the raster `factor` times
-    coarser with the same origin (cny rows). Returns (fine cells, coarse cells) occupied."""
+    """`_rasterise` into the fine raster and, in the same pass over the map, into each level of the
+    pyramid above it (level l: factor^(l+1) times coarser, its cells at offset base[l] of `cgrid`, its
+    slots in csums[l], ctouched[l]; cused[l] gets its occupied cells). Returns the fine cells occupied."""
+    depth = csums.shape[0]
+    base = np.zeros(depth, dtype=np.int64)
+    rows = np.zeros(depth, dtype=np.int64)
+    fls = np.zeros(depth, dtype=np.int64)
+    offset = 0
+    for lv in range(depth):
+        fl, cnx, cny = _level_shape(nx, ny, factor, lv)
+        base[lv], rows[lv], fls[lv] = offset, cny, fl
+        offset += cnx * cny
+        cused[lv] = 0
     used = 0
-    cused = 0
     for k in range(lo, hi):
         if map_p[k] < min_p:
             continue
@@ -209,12 +231,13 @@ def _rasterise_both(
         if cx < 0 or cx >= nx or cy < 0 or cy >= ny:
             continue
         used = _add_point(map_xy[k, 0], map_xy[k, 1], cx * ny + cy, grid, sums, touched, used)
-        cused = _add_point(
-            map_xy[k, 0], map_xy[k, 1], (cx // factor) * cny + cy // factor, cgrid, csums, ctouched, cused
-        )
+        for lv in range(depth):
+            g = base[lv] + (cx // fls[lv]) * rows[lv] + cy // fls[lv]
+            cused[lv] = _add_point(map_xy[k, 0], map_xy[k, 1], g, cgrid, csums[lv], ctouched[lv], cused[lv])
     _to_means(sums, used)
-    _to_means(csums, cused)
-    return used, cused
+    for lv in range(depth):
+        _to_means(csums[lv], cused[lv])
+    return used
 
 
 @njit(cache=True)
@@ -292,200 +315,144 @@ def _climb(
 
 
 @njit(cache=True)
-def _match_one(
-    i,
-    map_xy,
-    map_p,
-    lo,
-    hi,
-    pose0,
-    ends,
-    dirs,
-    score_inv,
-    coarse_ends,
-    coarse_dirs,
-    coarse_inv,
-    window,
-    cell_m,
-    kernel,
-    min_p,
-    match,
-    grid,
-    sums,
-    touched,
-    coarse_grid,
-    coarse_sums,
-    coarse_touched,
-    out,
-):
-    """Rasterise particle i's window of its map, climb the score (from the motion sample and, when
-    match[8] > 1, also coarse to fine from it: see below), weigh the scan; reset the rasters."""
-    x0, y0 = window[0], window[1]
-    nx, ny = int(window[2]), int(window[3])
-    step_xy, step_phi, levels, max_iter, like_inv, miss_d2 = (
-        match[0],
-        match[1],
-        int(match[2]),
-        int(match[3]),
-        match[5],
-        match[6],
-    )
-    inv_line = match[4]  # 1 / 2 sigma_s^2: the width of a point-to-line distance
-    pair_d2 = match[7]
-    factor = int(match[8])
-    pose = pose0.copy()
-    coarse = factor > 1 and max_iter > 0
-    cc = cell_m * factor
-    cnx, cny = nx // factor + 1, ny // factor + 1
-    cused = 0
-    if coarse:
-        used, cused = _rasterise_both(
-            map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched,
-            factor, cny, coarse_grid, coarse_sums, coarse_touched,
-        )  # fmt: skip
-    else:
-        used = _rasterise(map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched)
-    mean_xy = sums
+def _fine_climb(pose, ends, dirs, score_inv, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, match):
+    """The fine climb from `pose` (in place), with the steps and levels of `match`; returns its score."""
+    return _climb(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, match[7], match[4],
+                  match[0], match[1], int(match[2]), int(match[3]))  # fmt: skip
 
-    def fine_climb(start):  # the fine climb from `start`, in place; returns its score
-        return _climb(
-            start,
-            ends,
-            dirs,
-            x0,
-            y0,
-            nx,
-            ny,
-            cell_m,
-            kernel,
-            grid,
-            mean_xy,
-            score_inv,
-            pair_d2,
-            inv_line,
-            step_xy,
-            step_phi,
-            levels,
-            max_iter,
-        )
 
-    current = fine_climb(pose) if used else 0.0
-    if used and coarse and cused:
-        # a second start, coarse to fine: climb from the motion sample on a raster `factor` times coarser
-        # (every width, reach and step scaled by it, so a return finds the map up to `factor`
-        # times further away). Where it ends within a coarse cell and factor / 2 angular steps of the fine climb's
-        # result, the coarse raster cannot tell the two apart and the fine result stands; else the fine
-        # raster is climbed from there too, and its result is the match when its fine score is higher by
-        # at least match[10] x the returns (a jump against the odometry must be paid for by returns it
-        # explains).
-        second = pose0.copy()
-        f2 = float(factor * factor)
-        min_gain = match[10] * ends.shape[0]
-        _climb(
-            second,
-            coarse_ends,
-            coarse_dirs,
-            x0,
-            y0,
-            cnx,
-            cny,
-            cc,
-            kernel,
-            coarse_grid,
-            coarse_sums,
-            coarse_inv / f2,
-            pair_d2 * f2,
-            inv_line / f2,
-            step_xy * factor,
-            step_phi * factor,
-            int(match[9]),
-            max_iter,
-        )
-        dx, dy = second[0] - pose[0], second[1] - pose[1]
-        if dx * dx + dy * dy > cc * cc or abs(second[2] - pose[2]) > 0.5 * factor * step_phi:
-            score2 = fine_climb(second)
-            if score2 > current + min_gain:
-                current = score2
-                pose[:] = second
+@njit(cache=True)
+def _weigh(i, pose, current, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, match, out):
+    """Particle i's result: the matched pose, its score and the scan's log-likelihood there."""
     like, hits = _log_likelihood(
-        pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, like_inv, miss_d2, pair_d2
+        pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, match[5], match[6], match[7]
     )
-    for slot in range(used):
-        grid[touched[slot]] = _EMPTY
-    for slot in range(cused):
-        coarse_grid[coarse_touched[slot]] = _EMPTY
     out[i, 0], out[i, 1], out[i, 2] = pose[0], pose[1], pose[2]
     out[i, 3] = current
     out[i, 4] = like
     out[i, 5] = hits
 
 
+@njit(cache=True)
+def _match_one(i, map_xy, map_p, lo, hi, pose0, ends, dirs, score_inv, window, cell_m, kernel, min_p, match,
+               grid, sums, touched, out):  # fmt: skip
+    """Rasterise particle i's window of its map, climb the score from the motion sample, weigh the scan
+    there; reset the raster."""
+    x0, y0 = window[0], window[1]
+    nx, ny = int(window[2]), int(window[3])
+    pose = pose0.copy()
+    used = _rasterise(map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched)
+    current = 0.0
+    if used:
+        current = _fine_climb(pose, ends, dirs, score_inv, x0, y0, nx, ny, cell_m, kernel, grid, sums, match)
+    _weigh(i, pose, current, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, sums, match, out)
+    for slot in range(used):
+        grid[touched[slot]] = _EMPTY
+
+
+@njit(cache=True)
+def _coarse_start_one(i, map_xy, map_p, lo, hi, pose0, ends, dirs, score_inv, coarse_ends, coarse_dirs,
+                      coarse_inv, window, cell_m, kernel, min_p, match, grid, sums, touched, coarse_grid,
+                      coarse_sums, coarse_touched, out):  # fmt: skip
+    """The second start, coarse to fine, for particle i whose fine match is in out[i]: climb from the
+    motion sample down a pyramid of rasters, each match[8] times coarser than the one below
+    (coarse_sums.shape[0] levels; on each, every width, reach and step scaled by its factor, so a
+    return finds the map up to that many times further away), from the coarsest to the one just above
+    the fine raster. Where that ends within a cell of the lowest level and factor / 2 angular steps of the
+    fine match, the pyramid cannot tell the two apart and the fine match stands; else the fine raster is
+    climbed from there too, and its result replaces the fine match when it scores higher by at least
+    match[10] x the returns (a jump against the odometry must be paid for by returns it explains).
+    Resets every raster."""
+    x0, y0 = window[0], window[1]
+    nx, ny = int(window[2]), int(window[3])
+    factor = int(match[8])
+    depth = coarse_sums.shape[0]
+    cused = np.zeros(depth, dtype=np.int64)
+    used = _rasterise_pyramid(
+        map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched,
+        factor, coarse_grid, coarse_sums, coarse_touched, cused,
+    )  # fmt: skip
+    if used and cused[0]:
+        second = pose0.copy()
+        offset = 0
+        for lv in range(depth):
+            offset += _level_shape(nx, ny, factor, lv)[1] * _level_shape(nx, ny, factor, lv)[2]
+        for lv in range(depth - 1, -1, -1):
+            fl, cnx, cny = _level_shape(nx, ny, factor, lv)
+            offset -= cnx * cny
+            if cused[lv] == 0:
+                continue
+            f2 = float(fl * fl)
+            _climb(
+                second,
+                coarse_ends,
+                coarse_dirs,
+                x0,
+                y0,
+                cnx,
+                cny,
+                cell_m * fl,
+                kernel,
+                coarse_grid[offset : offset + cnx * cny],
+                coarse_sums[lv],
+                coarse_inv / f2,
+                match[7] * f2,
+                match[4] / f2,
+                match[0] * fl,
+                match[1] * fl,
+                int(match[9]),
+                int(match[3]),
+            )
+        cc = cell_m * factor
+        dx, dy = second[0] - out[i, 0], second[1] - out[i, 1]
+        if dx * dx + dy * dy > cc * cc or abs(second[2] - out[i, 2]) > 0.5 * factor * match[1]:
+            score2 = _fine_climb(second, ends, dirs, score_inv, x0, y0, nx, ny, cell_m, kernel, grid, sums, match)
+            if score2 > out[i, 3] + match[10] * ends.shape[0]:
+                _weigh(i, second, score2, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, sums, match, out)
+    for slot in range(used):
+        grid[touched[slot]] = _EMPTY
+    for lv in range(depth):
+        for slot in range(cused[lv]):
+            coarse_grid[coarse_touched[lv, slot]] = _EMPTY
+
+
 @njit(cache=True, parallel=True, nogil=True)
-def _match_all(
-    map_xy,
-    map_p,
-    lo,
-    hi,
-    poses,
-    ends,
-    dirs,
-    score_inv,
-    coarse_ends,
-    coarse_dirs,
-    coarse_inv,
-    windows,
-    cell_m,
-    kernel,
-    min_p,
-    match,
-    grids,
-    sums,
-    touched,
-    coarse_grids,
-    coarse_sums,
-    coarse_touched,
-):
+def _match_all(map_xy, map_p, lo, hi, poses, ends, dirs, score_inv, windows, cell_m, kernel, min_p, match,
+               grids, sums, touched):  # fmt: skip
+    """_match_one for every particle, spread over the workers (one raster each)."""
     n = poses.shape[0]
-    workers = grids.shape[0]
     out = np.empty((n, 6))
     counter = np.zeros(1, dtype=np.int64)
-    for w in prange(workers):
+    for w in prange(grids.shape[0]):
         while True:
             i = next_index(counter)  # the next particle not taken (gslam.workqueue)
             if i >= n:
                 break
-            _match_one(
-                i,
-                map_xy,
-                map_p,
-                lo[i],
-                hi[i],
-                poses[i],
-                ends,
-                dirs,
-                score_inv,
-                coarse_ends,
-                coarse_dirs,
-                coarse_inv,
-                windows[i],
-                cell_m,
-                kernel,
-                min_p,
-                match,
-                grids[w],
-                sums[w],
-                touched[w],
-                coarse_grids[w],
-                coarse_sums[w],
-                coarse_touched[w],
-                out,
-            )
+            _match_one(i, map_xy, map_p, lo[i], hi[i], poses[i], ends, dirs, score_inv, windows[i], cell_m, kernel,
+                       min_p, match, grids[w], sums[w], touched[w], out)  # fmt: skip
     return out
 
 
+@njit(cache=True, parallel=True, nogil=True)
+def _coarse_start_all(chosen, map_xy, map_p, lo, hi, poses, ends, dirs, score_inv, coarse_ends, coarse_dirs,
+                      coarse_inv, windows, cell_m, kernel, min_p, match, grids, sums, touched, coarse_grids,
+                      coarse_sums, coarse_touched, out):  # fmt: skip
+    """_coarse_start_one for the particles `chosen`, spread over the workers; updates `out` in place."""
+    counter = np.zeros(1, dtype=np.int64)
+    for w in prange(grids.shape[0]):
+        while True:
+            k = next_index(counter)
+            if k >= chosen.shape[0]:
+                break
+            i = chosen[k]
+            _coarse_start_one(i, map_xy, map_p, lo[i], hi[i], poses[i], ends, dirs, score_inv, coarse_ends,
+                              coarse_dirs, coarse_inv, windows[i], cell_m, kernel, min_p, match, grids[w], sums[w],
+                              touched[w], coarse_grids[w], coarse_sums[w], coarse_touched[w], out)  # fmt: skip
+
+
 class MatchWorkspace:
-    """Rasters reused between calls (one fine and one coarse per worker), grown when a larger window or
-    map comes."""
+    """Rasters reused between calls (per worker: one fine raster and the coarse pyramid above it, whose
+    levels share one cell array), grown when a larger window or map comes."""
 
     def __init__(self, workers: int) -> None:
         self.workers = max(1, int(workers))
@@ -493,10 +460,10 @@ class MatchWorkspace:
         self.sums = np.empty((self.workers, 0, 3))
         self.touched = np.empty((self.workers, 0), dtype=np.int64)
         self.coarse_grids = np.full((self.workers, 0), _EMPTY, dtype=np.int32)
-        self.coarse_sums = np.empty((self.workers, 0, 3))
-        self.coarse_touched = np.empty((self.workers, 0), dtype=np.int64)
+        self.coarse_sums = np.empty((self.workers, 0, 0, 3))
+        self.coarse_touched = np.empty((self.workers, 0, 0), dtype=np.int64)
 
-    def reserve(self, cells: int, points: int, coarse_cells: int = 0) -> None:
+    def reserve(self, cells: int, points: int, coarse_cells: int = 0, depth: int = 0) -> None:
         if cells > self.grids.shape[1]:
             self.grids = np.full((self.workers, int(cells * 1.25) + 1), _EMPTY, dtype=np.int32)
         if coarse_cells > self.coarse_grids.shape[1]:
@@ -505,10 +472,10 @@ class MatchWorkspace:
             size = int(points * 1.5) + 1
             self.sums = np.empty((self.workers, size, 3))
             self.touched = np.empty((self.workers, size), dtype=np.int64)
-        if coarse_cells and points > self.coarse_sums.shape[1]:
-            size = int(points * 1.5) + 1
-            self.coarse_sums = np.empty((self.workers, size, 3))
-            self.coarse_touched = np.empty((self.workers, size), dtype=np.int64)
+        if depth and (points > self.coarse_sums.shape[2] or depth != self.coarse_sums.shape[1]):
+            size = max(int(points * 1.5) + 1, self.coarse_sums.shape[2])
+            self.coarse_sums = np.empty((self.workers, depth, size, 3))
+            self.coarse_touched = np.empty((self.workers, depth, size), dtype=np.int64)
 
 
 def match_and_weigh(
@@ -537,15 +504,23 @@ def match_and_weigh(
     coarse_levels: int = 2,
     coarse_stride: int = 1,
     coarse_min_gain: float = 0.0,
+    coarse_depth: int = 1,
+    coarse_gate: float = math.inf,
+    coarse_reference: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Match the scan end points `ends_sensor` (K, 2) against each particle's map and weigh it there.
 
     Particle i's map is map_xy[map_lo[i]:map_hi[i]] with probabilities map_p[...]; `line_pair_m` 0 scores
     every return point to point. `coarse_factor` > 1: a second start, climbed from the motion sample on a
-    raster that many times coarser (cells, widths, steps, line pairs all scaled), `coarse_levels` step
-    halvings, on every `coarse_stride`-th return; where it ends more than a coarse cell (or factor / 2
+    raster that many times coarser (cells, widths, steps, line pairs all scaled; `coarse_depth` levels,
+    each `coarse_factor` times coarser than the one below, climbed from the coarsest down), `coarse_levels`
+    step halvings on each, on every `coarse_stride`-th return; where it ends more than a coarse cell (or factor / 2
     angular steps) from the fine climb's result it is climbed on the fine raster too, and replaces that
-    result when it scores `coarse_min_gain` x the returns higher. Returns (matched
+    result when it scores `coarse_min_gain` x the returns higher. The second start is tried only for the
+    particles whose fine fit (score / returns) is at most `coarse_gate` x the reference fit: the best fine
+    fit among the particles, or `coarse_reference` if higher (the filter passes the median fit of its
+    previous update, so a slip that takes every particle out of the fine climb's basin is still caught);
+    above 1: every particle. Returns (matched
     poses (N, 3), score at the matched pose (N,), log-likelihood there (N,), returns that found an
     occupied cell near their end point (N,)).
     """
@@ -564,8 +539,9 @@ def match_and_weigh(
     windows = np.column_stack([x0, y0, nx, ny])
     sizes = (map_hi - map_lo) if n else np.zeros(0, dtype=np.int64)
     f = max(1, int(coarse_factor))
-    coarse_cells = int(((nx // f + 1) * (ny // f + 1)).max()) if f > 1 else 0
-    workspace.reserve(int((nx * ny).max()), int(sizes.max()) if n else 0, coarse_cells)
+    depth = max(1, int(coarse_depth)) if f > 1 else 0
+    coarse_cells = sum(int(((nx // f ** (lv + 1) + 1) * (ny // f ** (lv + 1) + 1)).max()) for lv in range(depth))
+    workspace.reserve(int((nx * ny).max()), int(sizes.max()) if n else 0, coarse_cells, depth)
     match = np.array(
         [
             step_xy_m,
@@ -583,29 +559,23 @@ def match_and_weigh(
     )
     dirs = ends / np.maximum(rng, 1e-12)[:, None]
     score_inv = 0.5 / (score_sigma_m**2 + (rng * score_sigma_rad) ** 2)
-    stride = max(1, int(coarse_stride))
-    out = _match_all(
-        np.ascontiguousarray(map_xy, dtype=MAP_DTYPE),
-        np.ascontiguousarray(map_p, dtype=MAP_DTYPE),
-        np.asarray(map_lo, dtype=np.int64),
-        np.asarray(map_hi, dtype=np.int64),
-        poses,
-        ends,
-        dirs,
-        score_inv,
-        np.ascontiguousarray(ends[::stride]),
-        np.ascontiguousarray(dirs[::stride]),
-        np.ascontiguousarray(score_inv[::stride]),
-        windows,
-        float(cell_m),
-        int(kernel),
-        float(min_p),
-        match,
-        workspace.grids,
-        workspace.sums,
-        workspace.touched,
-        workspace.coarse_grids,
-        workspace.coarse_sums,
-        workspace.coarse_touched,
-    )
+    map_xy = np.ascontiguousarray(map_xy, dtype=MAP_DTYPE)
+    map_p = np.ascontiguousarray(map_p, dtype=MAP_DTYPE)
+    lo = np.asarray(map_lo, dtype=np.int64)
+    hi = np.asarray(map_hi, dtype=np.int64)
+    grids = (workspace.grids, workspace.sums, workspace.touched)
+    out = _match_all(map_xy, map_p, lo, hi, poses, ends, dirs, score_inv, windows, float(cell_m), int(kernel),
+                     float(min_p), match, *grids)  # fmt: skip
+    if f > 1 and max_iterations > 0:
+        fit = out[:, 3] / len(ends)
+        reference = max(float(fit.max()), float(coarse_reference))
+        chosen = np.flatnonzero(fit <= coarse_gate * reference).astype(np.int64)
+        if len(chosen):
+            stride = max(1, int(coarse_stride))
+            _coarse_start_all(
+                chosen, map_xy, map_p, lo, hi, poses, ends, dirs, score_inv,
+                np.ascontiguousarray(ends[::stride]), np.ascontiguousarray(dirs[::stride]),
+                np.ascontiguousarray(score_inv[::stride]), windows, float(cell_m), int(kernel), float(min_p),
+                match, *grids, workspace.coarse_grids, workspace.coarse_sums, workspace.coarse_touched, out,
+            )  # fmt: skip
     return out[:, :3].copy(), out[:, 3].copy(), out[:, 4].copy(), out[:, 5].astype(np.int64)

@@ -62,6 +62,13 @@ def _match(maps, poses, pts, cfg=None, **over):
     return match_and_weigh(xy, p, lo, hi, np.asarray(poses, dtype=float), pts, **kw)
 
 
+def _room_scan() -> tuple[PointMap, np.ndarray, np.ndarray]:
+    """The room as a map, a pose in it and the scan seen from there (sensor frame)."""
+    world = _room(np.random.default_rng(5))
+    truth = np.array([1.0, 0.5, 0.2])
+    return PointMap(world, np.full(len(world), 0.9)), truth, _scan_points(world, truth)
+
+
 def test_match_recovers_a_known_pose_offset_for_every_particle():
     rng = np.random.default_rng(0)
     world = _room(rng)
@@ -89,11 +96,7 @@ def test_coarse_to_fine_start_recovers_an_offset_beyond_the_fine_basin():
     # returns find the map within a cell or two only, so its climb stops short; the coarse-to-fine start
     # (cells, reach and steps 4 times larger, then the fine raster) reaches the pose, and with its clearly
     # higher fine score it is the match. A start already at the pose is left where the fine climb puts it.
-    rng = np.random.default_rng(5)
-    world = _room(rng)
-    m = PointMap(world, np.full(len(world), 0.9))
-    truth = np.array([1.0, 0.5, 0.2])
-    pts = _scan_points(world, truth)
+    m, truth, pts = _room_scan()
     start = truth + np.array([[0.56, -0.42, math.radians(4.0)], [-0.42, 0.56, math.radians(-4.0)], [0.01, 0.0, 0.0]])
     fine, fine_score, _, _ = _match([m] * 3, start, pts)
     both, both_score, _, _ = _match([m] * 3, start, pts, coarse_factor=4)
@@ -103,6 +106,49 @@ def test_coarse_to_fine_start_recovers_an_offset_beyond_the_fine_basin():
         assert abs(both[i, 2] - truth[2]) < math.radians(0.2)
         assert both_score[i] > fine_score[i]
     assert both_score[2] >= fine_score[2] and np.hypot(*(both[2, :2] - truth[:2])) < 0.02
+
+
+def test_a_deeper_pyramid_widens_the_basin_to_a_metre():
+    # Motion samples up to 1.2 m and 7 deg off (a slip that doubles a metre-long step): the fine climb alone
+    # recovers almost none; one coarse level (0.2 m cells) recovers most; a second level above it (0.8 m
+    # cells, its result descending through the first) recovers nearly all.
+    m, truth, pts = _room_scan()
+    offsets = np.random.default_rng(1).uniform(-1.2, 1.2, (40, 3)) * [1, 1, 0.1]
+    recovered = {}
+    for name, over in {
+        "fine": {},
+        "one level": dict(coarse_factor=4, coarse_levels=3, coarse_depth=1),
+        "two levels": dict(coarse_factor=4, coarse_levels=3, coarse_depth=2),
+    }.items():
+        r, _, _, _ = _match([m] * len(offsets), truth + offsets, pts, coarse_min_gain=0.05, **over)
+        recovered[name] = int((np.hypot(*(r[:, :2] - truth[:2]).T) < 0.05).sum())
+    assert recovered["fine"] <= 4, recovered
+    assert recovered["one level"] >= 30, recovered
+    assert recovered["two levels"] >= 36 and recovered["two levels"] > recovered["one level"], recovered
+
+
+def test_coarse_start_is_tried_only_where_the_fine_match_fits_worse_than_the_reference():
+    # The gate (match_coarse_gate 0.9): a particle whose fine match fits as well as the best one has nothing
+    # to recover and is not tried; the two stuck ones fit far worse than the particle at the truth and are
+    # recovered as without the gate.
+    m, truth, pts = _room_scan()
+    start = truth + np.array([[0.56, -0.42, math.radians(4.0)], [-0.42, 0.56, math.radians(-4.0)], [0.01, 0.0, 0.0]])
+    every = _match([m] * 3, start, pts, coarse_factor=4, coarse_min_gain=0.05)
+    gated = _match([m] * 3, start, pts, coarse_factor=4, coarse_min_gain=0.05, coarse_gate=0.9)
+    for a, b in zip(every, gated, strict=True):
+        np.testing.assert_array_equal(a, b)
+    # Every particle stuck alike (a slip that takes them all out of the fine basin): measured against one
+    # another they fit alike and none is tried; against the previous update's median fit (the reference the
+    # filter passes) all are, and all are recovered.
+    alike = truth + np.array([[0.56, -0.42, math.radians(4.0)]] * 2)
+    fine, fine_score, _, _ = _match([m] * 2, alike, pts)
+    alone, _, _, _ = _match([m] * 2, alike, pts, coarse_factor=4, coarse_min_gain=0.05, coarse_gate=0.9)
+    np.testing.assert_array_equal(alone, fine)
+    assert (fine_score / len(pts) < 0.8).all()
+    caught, _, _, _ = _match(
+        [m] * 2, alike, pts, coarse_factor=4, coarse_min_gain=0.05, coarse_gate=0.9, coarse_reference=0.95
+    )
+    assert (np.hypot(*(caught[:, :2] - truth[:2]).T) < 0.02).all(), caught
 
 
 def test_match_result_does_not_depend_on_the_number_of_workers():
