@@ -152,7 +152,7 @@ class FilterConfig:
     climb starts on the coarsest from the motion sample and descends (1: one level, 0.2 m cells)."""
     match_coarse_stride: int = 1
     """The coarse climb uses every k-th of the matcher's returns (1: all). Every 2nd was cheaper by little
-    (the coarse climb costs a tenth of the fine one) and broke a loop on the Freiburg campus."""
+    and broke a loop on the Freiburg campus (docs/CHOICES.md)."""
     match_coarse_min_gain: float = 0.05
     """The coarse start's match replaces the fine climb's only when its score is higher by this fraction of
     the returns. Where a scan has few returns (68 at the Car Park's first updates), two poses half a metre
@@ -163,9 +163,10 @@ class FilterConfig:
     as the reference: the best fine match among the particles, or the median of the previous update's
     matches if that is higher (so a slip that takes every particle out of the fine climb's basin is caught
     too); the fit of a match is its score per return. A particle whose fine climb found the map as well as
-    the others did has nothing to recover, and the coarse climb then costs a third of the fine one for
-    nothing: on the corpus the gate at 0.9 keeps 99 % of the matches the coarse start improves
-    while trying it on 6 to 65 % of the particles (docs/CHOICES.md). Above 1: every particle."""
+    the others did has nothing to recover, and the coarse climb then costs about 40 % of the fine one
+    (score evaluations on mit-csail) for nothing: on the corpus the gate at 0.9 keeps 97 to 100 % of the
+    matches the coarse start improves while trying it on 9 to 66 % of the particles (docs/CHOICES.md).
+    Above 1: every particle."""
     match_min_p: float = 0.5
     """Map points with at least this probability take part in matching and weighing."""
     match_step_xy_m: float = 0.05

@@ -207,13 +207,14 @@ def _level_shape(nx, ny, factor, level):
 
 @njit(cache=True, inline="always")
 def _rasterise_pyramid(
-    map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched, factor, cgrid, csums, ctouched, cused
-):
+    map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched, factor, cgrid, csums, ctouched,
+    cused, base,
+):  # fmt: skip
     """`_rasterise` into the fine raster and, in the same pass over the map, into each level of the
     pyramid above it (level l: factor^(l+1) times coarser, its cells at offset base[l] of `cgrid`, its
-    slots in csums[l], ctouched[l]; cused[l] gets its occupied cells). Returns the fine cells occupied."""
+    slots in csums[l], ctouched[l]; cused[l] gets its occupied cells, base[l] its offset). Returns the fine
+    cells occupied. A point in the window is in every level, so every level is occupied or none."""
     depth = csums.shape[0]
-    base = np.zeros(depth, dtype=np.int64)
     rows = np.zeros(depth, dtype=np.int64)
     fls = np.zeros(depth, dtype=np.int64)
     offset = 0
@@ -368,20 +369,15 @@ def _coarse_start_one(i, map_xy, map_p, lo, hi, pose0, ends, dirs, score_inv, co
     factor = int(match[8])
     depth = coarse_sums.shape[0]
     cused = np.zeros(depth, dtype=np.int64)
+    base = np.zeros(depth, dtype=np.int64)
     used = _rasterise_pyramid(
         map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched,
-        factor, coarse_grid, coarse_sums, coarse_touched, cused,
+        factor, coarse_grid, coarse_sums, coarse_touched, cused, base,
     )  # fmt: skip
     if used and cused[0]:
         second = pose0.copy()
-        offset = 0
-        for lv in range(depth):
-            offset += _level_shape(nx, ny, factor, lv)[1] * _level_shape(nx, ny, factor, lv)[2]
         for lv in range(depth - 1, -1, -1):
             fl, cnx, cny = _level_shape(nx, ny, factor, lv)
-            offset -= cnx * cny
-            if cused[lv] == 0:
-                continue
             f2 = float(fl * fl)
             _climb(
                 second,
@@ -393,7 +389,7 @@ def _coarse_start_one(i, map_xy, map_p, lo, hi, pose0, ends, dirs, score_inv, co
                 cny,
                 cell_m * fl,
                 kernel,
-                coarse_grid[offset : offset + cnx * cny],
+                coarse_grid[base[lv] : base[lv] + cnx * cny],
                 coarse_sums[lv],
                 coarse_inv / f2,
                 match[7] * f2,
