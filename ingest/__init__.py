@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import stat
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -55,6 +56,14 @@ def detect_format(source: Path) -> str:
     )
 
 
+def _require_file_or_directory(source: Path) -> None:
+    """A log is a regular file or a directory: a FIFO or a device (`/dev/zero`) would block or never end."""
+    mode = source.stat().st_mode
+    if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+        kind = "a FIFO" if stat.S_ISFIFO(mode) else "a device or socket"
+        raise IngestError(f"{source}: {kind}, not a log file or directory")
+
+
 def _reader_for(fmt: str) -> LogReader:
     for reader in READERS:
         if fmt in reader.formats:
@@ -68,10 +77,11 @@ def open_log(source: Path, fmt: str = "auto", options: ReadOptions | None = None
     options = options or ReadOptions()
     if fmt not in FORMATS:
         raise IngestError(f"unknown format {fmt!r}; choose one of {', '.join(FORMATS)}")
+    if not source.exists():
+        raise IngestError(f"{source}: no such file or directory")
+    _require_file_or_directory(source)
     if fmt == "auto":
         fmt = detect_format(source)
-    elif not source.exists():
-        raise IngestError(f"{source}: no such file or directory")
     given = [name for name in ReadOptions.BAG_OPTIONS if getattr(options, name) is not None]
     if given and fmt != "rosbag":
         flags = ", ".join("--" + name.replace("_", "-") for name in given)
@@ -85,6 +95,11 @@ def open_log(source: Path, fmt: str = "auto", options: ReadOptions | None = None
 def read_log(source: Path, fmt: str = "auto", dataset: str | None = None, skip_bad_lines: bool = False) -> LogData:
     """Read a Sydney or CARMEN log into memory (`LogData`). ROS bags stream instead: use `open_log`."""
     stream = open_log(source, fmt, ReadOptions(dataset=dataset, skip_bad_lines=skip_bad_lines))
+    load = getattr(stream, "load", None)  # a text log streamed into MCAP, read whole on request
+    if load is not None:
+        data = load()
+        data.dataset = stream.dataset
+        return data
     if not isinstance(stream, LogData):
         raise IngestError(f"{source}: a {stream.source_format} log is streamed, not read into memory")
     return stream

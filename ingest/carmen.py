@@ -14,11 +14,14 @@ from __future__ import annotations
 import gzip
 import math
 import zlib
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from .base import ReadOptions
+from .base import OdomRecord, ReadOptions, Record, RelationsRecord, ScanRecord
 from .logdata import LogData, ScanGeometry
 from .textlog import IngestError, time_problem
 
@@ -40,31 +43,27 @@ class CarmenReader:
             return "carmen" if source.name.lower().endswith((*CARMEN_SUFFIXES, ".gz")) else None
         return "carmen" if len(_logs_in(source)) == 1 else None
 
-    def open(self, source: Path, fmt: str, options: ReadOptions) -> LogData:
+    def open(self, source: Path, fmt: str, options: ReadOptions) -> CarmenStream:
         if source.is_dir():
             logs = _logs_in(source)
             if len(logs) != 1:
                 raise IngestError(f"{source}: expected one CARMEN log in the directory, found {len(logs)}")
             source = logs[0]
-        return read_carmen(source, options.skip_bad_lines)
+        return CarmenStream(source, options.skip_bad_lines)
 
 
 def _logs_in(directory: Path) -> list[Path]:
     return sorted(p for p in directory.iterdir() if p.name.endswith(CARMEN_SUFFIXES))
 
 
-def no_return_range_m(ranges_m: np.ndarray) -> float:
+def no_return_range_m(top_m: float, repeats: int) -> float:
     """The range from which readings carry no return. CARMEN logs do not record it; the SICK lasers write
     a fixed saturation value when nothing is hit (81.91 m on mit-csail, 81.83 m on intel). The log's
-    largest reading is that value when it recurs on many beams (a real far return is not repeated to the
-    centimetre): then it and everything above it is no return, as GMapping's ROS wrapper does with
-    `range_max - 0.01`. Otherwise the fixed CARMEN bound applies."""
-    finite = ranges_m[np.isfinite(ranges_m)]
-    if finite.size == 0:
-        return CARMEN_NO_RETURN_M
-    top = float(finite.max())
-    if top < CARMEN_NO_RETURN_M and int(np.count_nonzero(finite == top)) >= SATURATION_MIN_REPEATS:
-        return top
+    largest reading (`top_m`, read by `repeats` beams) is that value when it recurs on many beams (a real
+    far return is not repeated to the centimetre): then it and everything above it is no return, as
+    GMapping's ROS wrapper does with `range_max - 0.01`. Otherwise the fixed CARMEN bound applies."""
+    if top_m < CARMEN_NO_RETURN_M and repeats >= SATURATION_MIN_REPEATS:
+        return top_m
     return CARMEN_NO_RETURN_M
 
 
@@ -77,20 +76,42 @@ def carmen_geometry(beam_count: int, max_range_m: float = CARMEN_NO_RETURN_M) ->
     return ScanGeometry(beam_count, -math.pi / 2, step, max_range_m)
 
 
-def _open_text(path: Path) -> str:
+MAX_LINE_BYTES = 1 << 20
+"""The longest line read (1 MiB; a FLASER line of 1 081 beams is about 10 kB): a file without line breaks
+is refused, not read whole."""
+
+
+def _lines(path: Path) -> Iterator[tuple[int, str]]:
+    """(line number, text) of a CARMEN log, plain or gzip, read a line at a time (memory flat in the
+    log's length). Lines are split as `str.splitlines` splits them; bytes that are not UTF-8 are read as
+    Latin-1."""
     try:
-        raw = path.read_bytes()
+        f = open(path, "rb")
     except FileNotFoundError:
         raise IngestError(f"{path}: file not found") from None
-    if raw[:2] == b"\x1f\x8b":
-        try:
-            raw = gzip.decompress(raw)
-        except (OSError, EOFError, zlib.error) as e:
-            raise IngestError(f"{path}: corrupt gzip data ({e})") from None
-    try:
-        return raw.decode("utf-8")
-    except UnicodeDecodeError:
-        return raw.decode("latin-1")
+    with f:
+        packed = f.read(2) == b"\x1f\x8b"
+        f.seek(0)
+        stream = gzip.GzipFile(fileobj=f, mode="rb") if packed else f
+        lineno = 0
+        while True:
+            try:
+                raw = stream.readline(MAX_LINE_BYTES + 1)
+            except (OSError, EOFError, zlib.error) as e:
+                raise IngestError(f"{path}: corrupt gzip data ({e})") from None
+            if not raw:
+                return
+            if len(raw) > MAX_LINE_BYTES:
+                raise IngestError(
+                    f"{path}:{lineno + 1}: a line longer than {MAX_LINE_BYTES >> 20} MiB: not a CARMEN log"
+                )
+            try:
+                text = raw.decode("utf-8")
+            except UnicodeDecodeError:
+                text = raw.decode("latin-1")
+            for line in text.splitlines():
+                lineno += 1
+                yield lineno, line
 
 
 def relations_path_for(path: Path) -> Path:
@@ -124,118 +145,210 @@ def read_relations(path: Path) -> np.ndarray:
     return np.asarray(rows)
 
 
+@dataclass
+class _Event:
+    kind: str  # "scan" (a FLASER line: its odometry pose, then its scan) or "odom"
+    t_s: float
+    pose: tuple[float, float, float, float, float]  # x, y, theta, tv, rv (NaN unknown)
+    ranges_m: np.ndarray | None = None
+
+
+class _Parser:
+    """The FLASER and ODOM lines of a log, checked: every bad line is refused naming file and line (or,
+    with `skip_bad_lines`, dropped and counted)."""
+
+    def __init__(self, path: Path, skip_bad_lines: bool) -> None:
+        self.path, self.skip_bad_lines = path, skip_bad_lines
+        self.beam_count: int | None = None
+        self.dropped = 0
+        self.first_drop = ""
+        self.other: dict[str, int] = {}
+
+    def bad(self, lineno: int, why: str) -> None:
+        if not self.skip_bad_lines:
+            raise IngestError(f"{self.path}:{lineno}: {why}")
+        self.dropped += 1
+        self.first_drop = self.first_drop or f"{self.path}:{lineno}: {why}"
+
+    def events(self) -> Iterator[_Event]:
+        for lineno, line in _lines(self.path):
+            parts = line.split()
+            if not parts or parts[0].startswith("#"):
+                continue
+            kind = parts[0]
+            if kind == "FLASER":
+                event = self._flaser(lineno, parts)
+            elif kind == "ODOM":
+                event = self._odom(lineno, parts)
+            else:
+                self.other[kind] = self.other.get(kind, 0) + 1
+                continue
+            if event is not None:
+                yield event
+
+    def _flaser(self, lineno: int, parts: list[str]) -> _Event | None:
+        try:
+            n = int(parts[1])
+        except (IndexError, ValueError):
+            return self.bad(lineno, "FLASER without a beam count")
+        if len(parts) < n + 9:
+            return self.bad(
+                lineno,
+                f"FLASER with {n} beams needs {n + 9} fields (up to ipc_timestamp and hostname), found {len(parts)}",
+            )
+        if self.beam_count is not None and n != self.beam_count:
+            return self.bad(lineno, f"FLASER with {n} beams after scans with {self.beam_count}")
+        try:
+            ranges = np.array(parts[2 : 2 + n], dtype=float)
+            ox, oy, oth = (float(p) for p in parts[2 + n + 3 : 2 + n + 6])
+            t = float(parts[2 + n + 6])
+        except ValueError:
+            return self.bad(lineno, "FLASER field is not a number")
+        if not np.isfinite(ranges).all():
+            return self.bad(lineno, "FLASER has a non-finite range")
+        if not all(math.isfinite(v) for v in (ox, oy, oth)) or time_problem(t):
+            return self.bad(lineno, time_problem(t) or "FLASER has a non-finite odometry pose")
+        if (ranges < 0).any():
+            return self.bad(lineno, f"negative range {ranges[ranges < 0][0]} m at beam {int(np.argmax(ranges < 0))}")
+        self.beam_count = n
+        return _Event("scan", t, (ox, oy, oth, math.nan, math.nan), ranges)
+
+    def _odom(self, lineno: int, parts: list[str]) -> _Event | None:
+        if len(parts) < 8:
+            return self.bad(
+                lineno, f"ODOM needs at least 8 fields (ODOM x y theta tv rv accel ipc_timestamp), found {len(parts)}"
+            )
+        try:
+            x, y, th, tv, rv = (float(p) for p in parts[1:6])
+            t = float(parts[7])
+        except ValueError:
+            return self.bad(lineno, "ODOM field is not a number")
+        if not all(math.isfinite(v) for v in (x, y, th)) or time_problem(t):
+            return self.bad(lineno, time_problem(t) or "ODOM has a non-finite pose")
+        return _Event("odom", t, (x, y, th, tv, rv))
+
+
+class CarmenStream:
+    """A CARMEN log streamed into the MCAP writer (a `LogStream`), in two passes over the file, so memory
+    stays flat in the log's length: the first checks every line and finds what the records need (the
+    beam count, the no-return range `no_return_range_m`, the first time, the counts); the second yields
+    the records in file order (each FLASER's odometry pose just before its scan)."""
+
+    source_format = "carmen"
+
+    def __init__(self, path: Path, skip_bad_lines: bool = False) -> None:
+        self.path = Path(path)
+        self.skip_bad_lines = skip_bad_lines
+        self.dataset = self.path.name.split(".")[0]
+        self.warnings: list[str] = []
+        parser = _Parser(self.path, skip_bad_lines)
+        scans = odoms = back = top_count = 0
+        top = -math.inf
+        first_t = last_scan_t = None
+        for ev in parser.events():
+            first_t = ev.t_s if first_t is None else first_t
+            odoms += 1
+            if ev.kind == "scan":
+                scans += 1
+                if last_scan_t is not None and ev.t_s <= last_scan_t:
+                    back += 1
+                last_scan_t = ev.t_s
+                m = float(ev.ranges_m.max()) if len(ev.ranges_m) else -math.inf
+                if m > top:
+                    top, top_count = m, int(np.count_nonzero(ev.ranges_m == m))
+                elif m == top:
+                    top_count += int(np.count_nonzero(ev.ranges_m == m))
+        if not scans:
+            raise IngestError(f"{self.path}: no FLASER scans (empty or not a CARMEN log)")
+        if parser.dropped:
+            self.warnings.append(f"{self.path}: skipped {parser.dropped} malformed lines (first: {parser.first_drop})")
+        if parser.other:
+            listed = ", ".join(f"{k} x{v}" for k, v in sorted(parser.other.items()))
+            self.warnings.append(f"{self.path}: ignored lines of other types: {listed}")
+        if back:
+            self.warnings.append(f"{self.path}: {back} scans have non-increasing timestamps; file order kept")
+        self.no_return_m = no_return_range_m(top, top_count)
+        self.geometry = carmen_geometry(int(parser.beam_count), self.no_return_m)
+        self.first_t_s = float(first_t)
+        self.scan_count, self.odom_count = scans, odoms
+        rel = relations_path_for(self.path)
+        self.relations = read_relations(rel) if rel.exists() else None
+        if self.relations is None:
+            self.warnings.append(f"{rel}: no relations file beside the log; relations metric unavailable")
+
+    def counts(self) -> dict[str, int]:
+        n_rel = 0 if self.relations is None else len(self.relations)
+        return {
+            "scans": self.scan_count,
+            "ackermann": 0,
+            "odom_pose": self.odom_count,
+            "gps": 0,
+            "landmarks": 0,
+            "relations": n_rel,
+        }
+
+    @property
+    def expected_records(self) -> int:
+        return sum(self.counts().values())
+
+    def records(self) -> Iterator[tuple[int, Record]]:
+        """(log time, record) in file order; log times at least 1 ns apart (`monotone_log_times_ns`)."""
+        g = self.geometry
+        prev = None
+
+        def log_time(t_s: float) -> int:
+            nonlocal prev
+            ns = int(round(t_s * 1e9))
+            prev = ns if prev is None or ns > prev else prev + 1
+            return prev
+
+        if self.relations is not None:
+            yield int(round(self.first_t_s * 1e9)), RelationsRecord(self.relations)
+        for ev in _Parser(self.path, self.skip_bad_lines).events():
+            yield log_time(ev.t_s), OdomRecord(ev.t_s, *ev.pose, source="FLASER" if ev.kind == "scan" else "ODOM")
+            if ev.kind == "scan":
+                ranges = ev.ranges_m
+                ranges[ranges >= self.no_return_m] = np.inf
+                yield log_time(ev.t_s), ScanRecord(ev.t_s, ranges, g.start_angle_rad, g.end_angle_rad)
+
+    def metadata(self) -> dict[str, dict[str, Any]]:
+        return {
+            "dataset": {
+                "name": self.dataset,
+                "source_format": "carmen",
+                "source": str(self.path),
+                "counts": self.counts(),
+            },
+            "vehicle": {"motion_model": "odometry", "preset": "odometry"},
+            "sensor": {"frame": "laser", **self.geometry.as_dict(), "self_return_range_m": 0.0},
+        }
+
+    def load(self) -> LogData:
+        """The whole log in memory (`ingest.read_log`)."""
+        scan_t, scans, odom, sources = [], [], [], []
+        for _, rec in self.records():
+            if isinstance(rec, ScanRecord):
+                scan_t.append(rec.t_s)
+                scans.append(rec.ranges_m)
+            elif isinstance(rec, OdomRecord):
+                odom.append((rec.t_s, rec.x_m, rec.y_m, rec.theta_rad, rec.tv_mps, rec.rv_radps))
+                sources.append(rec.source)
+        log = LogData(
+            dataset=self.dataset,
+            source_format="carmen",
+            source=str(self.path),
+            motion_model="odometry",
+            geometry=self.geometry,
+            scan_t_s=np.asarray(scan_t),
+            scan_ranges_m=np.vstack(scans),
+            odom_pose=np.asarray(odom),
+            odom_source=sources,
+            warnings=list(self.warnings),
+        )
+        log.relations = self.relations
+        return log
+
+
 def read_carmen(path: Path, skip_bad_lines: bool = False) -> LogData:
-    path = Path(path)
-    text = _open_text(path)
-    warnings: list[str] = []
-    scan_t: list[float] = []
-    scans: list[np.ndarray] = []
-    odom: list[tuple[float, float, float, float, float, float]] = []
-    odom_source: list[str] = []
-    beam_count: int | None = None
-    dropped = 0
-    first_drop = ""
-    other: dict[str, int] = {}
-
-    def bad(lineno: int, why: str) -> None:
-        nonlocal dropped, first_drop
-        if not skip_bad_lines:
-            raise IngestError(f"{path}:{lineno}: {why}")
-        dropped += 1
-        first_drop = first_drop or f"{path}:{lineno}: {why}"
-
-    for lineno, line in enumerate(text.splitlines(), start=1):
-        parts = line.split()
-        if not parts or parts[0].startswith("#"):
-            continue
-        kind = parts[0]
-        if kind == "FLASER":
-            try:
-                n = int(parts[1])
-            except (IndexError, ValueError):
-                bad(lineno, "FLASER without a beam count")
-                continue
-            if len(parts) < n + 9:
-                bad(
-                    lineno,
-                    f"FLASER with {n} beams needs {n + 9} fields (up to ipc_timestamp and "
-                    f"hostname), found {len(parts)}",
-                )
-                continue
-            if beam_count is not None and n != beam_count:
-                bad(lineno, f"FLASER with {n} beams after scans with {beam_count}")
-                continue
-            try:
-                ranges = np.array(parts[2 : 2 + n], dtype=float)
-                ox, oy, oth = (float(p) for p in parts[2 + n + 3 : 2 + n + 6])
-                t = float(parts[2 + n + 6])
-            except ValueError:
-                bad(lineno, "FLASER field is not a number")
-                continue
-            if not np.isfinite(ranges).all():
-                bad(lineno, "FLASER has a non-finite range")
-                continue
-            if not all(math.isfinite(v) for v in (ox, oy, oth)) or time_problem(t):
-                bad(lineno, time_problem(t) or "FLASER has a non-finite odometry pose")
-                continue
-            if (ranges < 0).any():
-                bad(lineno, f"negative range {ranges[ranges < 0][0]} m at beam {int(np.argmax(ranges < 0))}")
-                continue
-            beam_count = n
-            scan_t.append(t)
-            scans.append(ranges)
-            odom.append((t, ox, oy, oth, math.nan, math.nan))
-            odom_source.append("FLASER")
-        elif kind == "ODOM":
-            if len(parts) < 8:
-                bad(
-                    lineno,
-                    f"ODOM needs at least 8 fields (ODOM x y theta tv rv accel ipc_timestamp), found {len(parts)}",
-                )
-                continue
-            try:
-                x, y, th, tv, rv = (float(p) for p in parts[1:6])
-                t = float(parts[7])
-            except ValueError:
-                bad(lineno, "ODOM field is not a number")
-                continue
-            if not all(math.isfinite(v) for v in (x, y, th)) or time_problem(t):
-                bad(lineno, time_problem(t) or "ODOM has a non-finite pose")
-                continue
-            odom.append((t, x, y, th, tv, rv))
-            odom_source.append("ODOM")
-        else:
-            other[kind] = other.get(kind, 0) + 1
-    if not scans:
-        raise IngestError(f"{path}: no FLASER scans (empty or not a CARMEN log)")
-    if dropped:
-        warnings.append(f"{path}: skipped {dropped} malformed lines (first: {first_drop})")
-    if other:
-        listed = ", ".join(f"{k} x{v}" for k, v in sorted(other.items()))
-        warnings.append(f"{path}: ignored lines of other types: {listed}")
-    scan_t_s = np.asarray(scan_t)
-    back = int(np.sum(np.diff(scan_t_s) <= 0))
-    if back:
-        warnings.append(f"{path}: {back} scans have non-increasing timestamps; file order kept")
-    ranges_m = np.vstack(scans)
-    no_return_m = no_return_range_m(ranges_m)
-    ranges_m[ranges_m >= no_return_m] = np.inf
-    name = path.name.split(".")[0]
-    log = LogData(
-        dataset=name,
-        source_format="carmen",
-        source=str(path),
-        motion_model="odometry",
-        geometry=carmen_geometry(int(beam_count), no_return_m),
-        scan_t_s=scan_t_s,
-        scan_ranges_m=ranges_m,
-        odom_pose=np.asarray(odom),
-        odom_source=odom_source,
-        warnings=warnings,
-    )
-    rel = relations_path_for(path)
-    if rel.exists():
-        log.relations = read_relations(rel)
-    else:
-        warnings.append(f"{rel}: no relations file beside the log; relations metric unavailable")
-    return log
+    """A CARMEN log read into memory (`CarmenStream.load`)."""
+    return CarmenStream(path, skip_bad_lines).load()

@@ -89,9 +89,13 @@ def _open_reader(path: Path):
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
+    from .bag_limits import install
+
+    install()  # chunks and messages decompressed within a bound (ingest.bag_limits)
+
     # ROS 2 bags recorded before Iron carry no message definitions: use the standard ones.
-    reader = AnyReader([path], default_typestore=get_typestore(Stores.LATEST))
-    try:
+    try:  # the constructor too: it refuses some files that are not bags (a .clf.gz given --format rosbag)
+        reader = AnyReader([path], default_typestore=get_typestore(Stores.LATEST))
         reader.open()
     except Exception as e:  # rosbags raises several types for files that are not (whole) bags
         raise IngestError(f"{path}: not a readable ROS bag ({_why(e)})") from None

@@ -7,14 +7,21 @@ frame (x ahead, y left) that is bearing -90 deg + k * 0.5 deg. Ranges at or beyo
 
 from __future__ import annotations
 
+import heapq
 import math
+from array import array
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from .base import ReadOptions
-from .logdata import LogData, ScanGeometry
-from .textlog import IngestError, Table, check_times, parse_numeric_csv
+from gslam.vehicle import vehicle_preset
+
+from .base import AckermannRecord, GpsRecord, LandmarksRecord, ReadOptions, Record, ScanRecord, TruthPoseRecord
+from .logdata import _PRIORITY, LogData, ScanGeometry
+from .textlog import IngestError, NumericCsv, check_times, parse_numeric_csv
 
 SYDNEY_BEAMS = 361
 SYDNEY_GEOMETRY = ScanGeometry(
@@ -47,14 +54,15 @@ class SydneyReader:
             return "sydney-text"
         return None
 
-    def open(self, source: Path, fmt: str, options: ReadOptions) -> LogData:
+    def open(self, source: Path, fmt: str, options: ReadOptions) -> SydneyTextStream | LogData:
         directory = source if source.is_dir() else source.parent
         if fmt == "sydney-text" and not (directory / "DRS.txt").exists() and (directory / "text").is_dir():
             directory = directory / "text"
         if source.is_file():
             _check_sydney_file(source, directory, fmt)
-        reader = read_sydney_text if fmt == "sydney-text" else read_sydney_mat
-        return reader(directory, options.skip_bad_lines)
+        if fmt == "sydney-text":
+            return SydneyTextStream(directory, options.skip_bad_lines)
+        return read_sydney_mat(directory, options.skip_bad_lines)
 
 
 def _check_sydney_file(source: Path, directory: Path, fmt: str) -> None:
@@ -76,93 +84,266 @@ def _dataset_name(directory: Path) -> str:
     return d.parent.name if d.name in ("text", "txt", "mat") else d.name
 
 
-def _ranges(table: Table, path: Path, skip_bad_lines: bool, warnings: list[str]) -> tuple[np.ndarray, np.ndarray]:
-    """Check ranges (no negatives) and map no-return values to +inf. Returns (kept rows mask, ranges)."""
-    ranges = table.rows[:, 1:]
-    negative = (ranges < 0).any(axis=1)
-    if negative.any():
-        first = int(np.argmax(negative))
-        if not skip_bad_lines:
-            beam = int(np.argmax(ranges[first] < 0))
-            raise IngestError(
-                f"{path}:{table.line_numbers[first]}: negative range {ranges[first, beam]} m at beam {beam}"
-            )
-        warnings.append(f"{path}: dropped {int(negative.sum())} scans with negative ranges")
-    keep = ~negative
-    out = ranges[keep].copy()
-    out[out >= NO_RETURN_M] = np.inf
-    return keep, out
-
-
 def _check_times(name: str, t: np.ndarray, warnings: list[str]) -> None:
     back = int(np.sum(np.diff(t) < 0))
     if back:
         warnings.append(f"{name}: {back} timestamps go backwards; file order kept")
 
 
-def _report_dropped(table: Table, path: Path, warnings: list[str]) -> None:
-    if table.dropped:
-        warnings.append(f"{path}: skipped {table.dropped} malformed lines (first: {table.drop_reasons[0]})")
+def _report_dropped(csv: NumericCsv, path: Path, warnings: list[str]) -> None:
+    if csv.dropped:
+        warnings.append(f"{path}: skipped {csv.dropped} malformed lines (first: {csv.drop_reasons[0]})")
+
+
+@dataclass
+class _Pass:
+    """What the first pass over one file found: its good rows' count, first time and backward steps."""
+
+    path: Path
+    csv: NumericCsv
+    rows: int = 0
+    first_t_s: float = math.nan
+    backwards: int = 0
+
+
+def _first_pass(path: Path, columns: int, skip_bad_lines: bool, row_check=None) -> _Pass:
+    """Check every line of one file (`row_check(lineno, values)` may drop a row by returning False)."""
+    found = _Pass(path, NumericCsv(path, columns, skip_bad_lines, time_column=0))
+    last = math.nan
+    for lineno, values in found.csv.rows():
+        if row_check is not None and not row_check(lineno, values):
+            continue
+        t = values[0]
+        if found.rows == 0:
+            found.first_t_s = t
+        elif t < last:
+            found.backwards += 1
+        last = t
+        found.rows += 1
+    return found
+
+
+def _log_times(rows: Iterator[tuple[int, list[float]]], priority: int, make) -> Iterator[tuple[int, int, int, object]]:
+    """(log time ns, priority, index, record) of one stream; log times keep file order, each at least
+    1 ns after the one before (`monotone_log_times_ns`, computed as the rows come)."""
+    prev = None
+    for i, (_, values) in enumerate(rows):
+        ns = int(round(values[0] * 1e9))
+        prev = ns if prev is None or ns > prev else prev + 1
+        yield prev, priority, i, make(values)
+
+
+class SydneyTextStream:
+    """A Sydney text log (DRS.txt speed and steering, GPS.txt, LASER.txt ranges, optional INTENSITY.txt,
+    BEACONS.txt, TRUTH.txt) streamed into the MCAP writer (a `LogStream`) in two passes, so memory stays
+    flat in the log's length: the first checks every line of every file and finds the counts, the first
+    times and which intensity line goes with each scan; the second merges the files by time (odometry
+    before GPS before the scan at equal times, as `LogData` orders them) and yields the records.
+
+    Held in memory: the pole list, and one time per scan and per intensity line (16 bytes a scan) to pair
+    them."""
+
+    source_format = "sydney-text"
+
+    def __init__(self, directory: Path, skip_bad_lines: bool = False) -> None:
+        directory = self.directory = Path(directory)
+        self.skip_bad_lines = skip_bad_lines
+        self.dataset = _dataset_name(directory)
+        warnings: list[str] = []
+        self.warnings = warnings
+        drs_path = directory / "DRS.txt"
+        if not drs_path.exists():
+            raise IngestError(f"{drs_path}: file not found (a Sydney text log needs DRS.txt)")
+        self.drs = _first_pass(drs_path, 3, skip_bad_lines)
+        self._report(self.drs)
+        gps_path = directory / "GPS.txt"
+        self.gps: _Pass | None = None
+        if gps_path.exists():
+            self.gps = _first_pass(gps_path, 3, skip_bad_lines)
+            self._report(self.gps)
+        else:
+            warnings.append(f"{gps_path}: not present; no GPS channel")
+        self.laser: _Pass | None = None
+        self.negative = 0
+        self.intensity_rows: np.ndarray | None = None  # per scan: its row among INTENSITY.txt's good rows
+        laser_path = directory / "LASER.txt"
+        if laser_path.exists():
+            scan_t = array("d")
+
+            def keep_scan(lineno: int, values: list[float]) -> bool:
+                ranges = values[1:]
+                if min(ranges) < 0:
+                    if not skip_bad_lines:
+                        beam = next(k for k, r in enumerate(ranges) if r < 0)
+                        raise IngestError(f"{laser_path}:{lineno}: negative range {ranges[beam]} m at beam {beam}")
+                    self.negative += 1
+                    return False
+                scan_t.append(values[0])
+                return True
+
+            self.laser = _first_pass(laser_path, 1 + SYDNEY_BEAMS, skip_bad_lines, keep_scan)
+            _report_dropped(self.laser.csv, laser_path, warnings)
+            if self.negative:
+                warnings.append(f"{laser_path}: dropped {self.negative} scans with negative ranges")
+            if self.laser.backwards:
+                warnings.append(f"{laser_path}: {self.laser.backwards} timestamps go backwards; file order kept")
+            intensity_path = directory / "INTENSITY.txt"
+            if intensity_path.exists():
+                self.intensity_rows = self._pair_intensities(intensity_path, np.frombuffer(scan_t))
+        else:
+            warnings.append(f"{laser_path}: not present; this log has odometry and GPS only, no laser")
+        beacons_path = directory / "BEACONS.txt"
+        self.landmarks = parse_numeric_csv(beacons_path, 2, skip_bad_lines).rows if beacons_path.exists() else None
+        truth_path = directory / "TRUTH.txt"  # simulated logs: t, x, y, phi of the laser
+        self.truth = _first_pass(truth_path, 4, skip_bad_lines) if truth_path.exists() else None
+
+    def _report(self, found: _Pass) -> None:
+        _report_dropped(found.csv, found.path, self.warnings)
+        if found.backwards:
+            self.warnings.append(f"{found.path}: {found.backwards} timestamps go backwards; file order kept")
+
+    def _pair_intensities(self, path: Path, scan_t: np.ndarray) -> np.ndarray | None:
+        """Each scan's intensity line, found by its time (the last line with that time); None, with a
+        warning, when a scan has none."""
+        csv = NumericCsv(path, 1 + SYDNEY_BEAMS, self.skip_bad_lines, time_column=0)
+        by_time = {values[0]: i for i, (_, values) in enumerate(csv.rows())}
+        _report_dropped(csv, path, self.warnings)
+        rows = [by_time.get(t) for t in scan_t.tolist()]
+        missing = sum(i is None for i in rows)
+        if missing:
+            self.warnings.append(f"{path}: {missing} scans have no intensity line; intensities left out")
+            return None
+        return np.asarray(rows, dtype=np.int64)
+
+    # -- LogStream ---------------------------------------------------------------------------------
+    def counts(self) -> dict[str, int]:
+        return {
+            "scans": 0 if self.laser is None else self.laser.rows,
+            "ackermann": self.drs.rows,
+            "odom_pose": 0,
+            "gps": 0 if self.gps is None else self.gps.rows,
+            "landmarks": 0 if self.landmarks is None else len(self.landmarks),
+            "relations": 0,
+        }
+
+    @property
+    def expected_records(self) -> int:
+        return sum(self.counts().values()) + (0 if self.truth is None else self.truth.rows)
+
+    def metadata(self) -> dict[str, dict[str, Any]]:
+        preset = vehicle_preset("carpark")
+        meta: dict[str, dict[str, Any]] = {
+            "dataset": {
+                "name": self.dataset,
+                "source_format": self.source_format,
+                "source": str(self.directory),
+                "counts": self.counts(),
+            },
+            "vehicle": {"motion_model": "ackermann", "preset": preset.name, **preset.as_dict()},
+        }
+        if self.laser is not None:
+            meta["sensor"] = {"frame": "laser", **SYDNEY_GEOMETRY.as_dict(), "self_return_range_m": SELF_RETURN_RANGE_M}
+        return meta
+
+    def _rows(self, found: _Pass) -> Iterator[tuple[int, list[float]]]:
+        return NumericCsv(found.path, found.csv.columns, self.skip_bad_lines, time_column=0).rows()
+
+    def _scans(self) -> Iterator[tuple[int, list[float]]]:
+        """LASER.txt's kept rows (no negative range)."""
+        return ((lineno, v) for lineno, v in self._rows(self.laser) if min(v[1:]) >= 0)
+
+    def _intensities(self) -> Iterator[np.ndarray]:
+        """Each scan's intensity codes, in scan order: INTENSITY.txt read alongside when its lines come in
+        scan order (the logs' case), else its good rows read whole."""
+        path = self.directory / "INTENSITY.txt"
+        csv = NumericCsv(path, 1 + SYDNEY_BEAMS, self.skip_bad_lines, time_column=0)
+        wanted = self.intensity_rows
+        if len(wanted) and (np.diff(wanted) < 0).any():
+            table = np.asarray([v for _, v in csv.rows()], dtype=float)
+            for i in wanted.tolist():
+                yield table[i, 1:]
+            return
+        rows = csv.rows()
+        at, row = -1, None
+        for i in wanted.tolist():
+            while at < i:
+                _, row = next(rows)
+                at += 1
+            yield np.asarray(row[1:], dtype=float)
+
+    def records(self) -> Iterator[tuple[int, Record]]:
+        """(log time, record): the poles first, then the three streams merged by time (ties: odometry, GPS,
+        scan), then the simulated truth; log times at least 1 ns apart."""
+        streams = [_log_times(self._rows(self.drs), _PRIORITY["ackermann"], lambda v: AckermannRecord(*v))]
+        firsts = [self.drs.first_t_s]
+        if self.gps is not None:
+            streams.append(_log_times(self._rows(self.gps), _PRIORITY["gps"], lambda v: GpsRecord(*v)))
+            firsts.append(self.gps.first_t_s)
+        if self.laser is not None and self.laser.rows:
+            g = SYDNEY_GEOMETRY
+            intensities = None if self.intensity_rows is None else self._intensities()
+
+            def scan(values: list[float]) -> ScanRecord:
+                ranges = np.asarray(values[1:], dtype=float)
+                ranges[ranges >= NO_RETURN_M] = np.inf
+                inten = None if intensities is None else next(intensities)
+                return ScanRecord(float(values[0]), ranges, g.start_angle_rad, g.end_angle_rad, inten)
+
+            streams.append(_log_times(self._scans(), _PRIORITY["scan"], scan))
+            firsts.append(self.laser.first_t_s)
+        if self.landmarks is not None:
+            yield min(int(round(t * 1e9)) for t in firsts), LandmarksRecord(self.landmarks)
+        prev = None
+        for ns, _, _, record in heapq.merge(*streams, key=lambda e: e[:3]):
+            prev = ns if prev is None or ns > prev else prev + 1  # ties between streams keep the order above
+            yield prev, record
+        if self.truth is not None:
+            # Written after the stream: MCAP indexes keep log-time order for readers.
+            for ns, _, _, record in _log_times(self._rows(self.truth), 0, lambda v: TruthPoseRecord(*v)):
+                yield ns, record
+
+    def load(self) -> LogData:
+        """The whole log in memory (`ingest.read_log`)."""
+        scan_t, scans, inten, ack, gps, truth = [], [], [], [], [], []
+        for _, rec in self.records():
+            if isinstance(rec, ScanRecord):
+                scan_t.append(rec.t_s)
+                scans.append(rec.ranges_m)
+                if rec.intensities is not None:
+                    inten.append(rec.intensities)
+            elif isinstance(rec, AckermannRecord):
+                ack.append((rec.t_s, rec.speed_mps, rec.steering_rad))
+            elif isinstance(rec, GpsRecord):
+                gps.append((rec.t_s, rec.x_m, rec.y_m))
+            elif isinstance(rec, TruthPoseRecord):
+                truth.append((rec.t_s, rec.x_m, rec.y_m, rec.theta_rad))
+        log = LogData(
+            dataset=self.dataset,
+            source_format=self.source_format,
+            source=str(self.directory),
+            motion_model="ackermann",
+            vehicle_preset="carpark",
+            ackermann=np.asarray(ack, dtype=float).reshape(-1, 3),
+            warnings=list(self.warnings),
+        )
+        if self.gps is not None:
+            log.gps = np.asarray(gps, dtype=float).reshape(-1, 3)
+        if self.laser is not None:
+            log.geometry = SYDNEY_GEOMETRY
+            log.self_return_range_m = SELF_RETURN_RANGE_M
+            log.scan_t_s = np.asarray(scan_t, dtype=float)
+            log.scan_ranges_m = np.vstack(scans) if scans else np.zeros((0, SYDNEY_BEAMS))
+            if self.intensity_rows is not None:
+                log.scan_intensities = np.vstack(inten) if inten else np.zeros((0, SYDNEY_BEAMS))
+        log.landmarks = self.landmarks
+        if self.truth is not None:
+            log.truth_pose = np.asarray(truth, dtype=float).reshape(-1, 4)
+        return log
 
 
 def read_sydney_text(directory: Path, skip_bad_lines: bool = False) -> LogData:
-    """DRS.txt (t,speed,steering), GPS.txt (t,x,y), LASER.txt (t + 361 ranges), optional
-    INTENSITY.txt (t + 361 codes) and BEACONS.txt (x,y)."""
-    directory = Path(directory)
-    warnings: list[str] = []
-    drs_path = directory / "DRS.txt"
-    if not drs_path.exists():
-        raise IngestError(f"{drs_path}: file not found (a Sydney text log needs DRS.txt)")
-    drs = parse_numeric_csv(drs_path, 3, skip_bad_lines, time_column=0)
-    _report_dropped(drs, drs_path, warnings)
-    _check_times(str(drs_path), drs.rows[:, 0], warnings)
-    log = LogData(
-        dataset=_dataset_name(directory),
-        source_format="sydney-text",
-        source=str(directory),
-        motion_model="ackermann",
-        vehicle_preset="carpark",
-        ackermann=drs.rows,
-    )
-    gps_path = directory / "GPS.txt"
-    if gps_path.exists():
-        gps = parse_numeric_csv(gps_path, 3, skip_bad_lines, time_column=0)
-        _report_dropped(gps, gps_path, warnings)
-        _check_times(str(gps_path), gps.rows[:, 0], warnings)
-        log.gps = gps.rows
-    else:
-        warnings.append(f"{gps_path}: not present; no GPS channel")
-    laser_path = directory / "LASER.txt"
-    if laser_path.exists():
-        laser = parse_numeric_csv(laser_path, 1 + SYDNEY_BEAMS, skip_bad_lines, time_column=0)
-        _report_dropped(laser, laser_path, warnings)
-        keep, ranges = _ranges(laser, laser_path, skip_bad_lines, warnings)
-        log.geometry = SYDNEY_GEOMETRY
-        log.self_return_range_m = SELF_RETURN_RANGE_M
-        log.scan_t_s = laser.rows[keep, 0]
-        log.scan_ranges_m = ranges
-        _check_times(str(laser_path), log.scan_t_s, warnings)
-        intensity_path = directory / "INTENSITY.txt"
-        if intensity_path.exists():
-            inten = parse_numeric_csv(intensity_path, 1 + SYDNEY_BEAMS, skip_bad_lines, time_column=0)
-            _report_dropped(inten, intensity_path, warnings)
-            by_time = dict(zip(inten.rows[:, 0].tolist(), range(len(inten.rows)), strict=True))
-            idx = [by_time.get(t) for t in log.scan_t_s.tolist()]
-            if any(i is None for i in idx):
-                missing = sum(i is None for i in idx)
-                warnings.append(f"{intensity_path}: {missing} scans have no intensity line; intensities left out")
-            else:
-                log.scan_intensities = inten.rows[idx, 1:]
-    else:
-        warnings.append(f"{laser_path}: not present; this log has odometry and GPS only, no laser")
-    beacons_path = directory / "BEACONS.txt"
-    if beacons_path.exists():
-        log.landmarks = parse_numeric_csv(beacons_path, 2, skip_bad_lines).rows
-    truth_path = directory / "TRUTH.txt"  # simulated logs: t, x, y, phi of the laser
-    if truth_path.exists():
-        log.truth_pose = parse_numeric_csv(truth_path, 4, skip_bad_lines, time_column=0).rows
-    log.warnings = warnings
-    return log
+    """A Sydney text log read into memory (`SydneyTextStream.load`)."""
+    return SydneyTextStream(directory, skip_bad_lines).load()
 
 
 def _loadmat_here(path: Path) -> dict:

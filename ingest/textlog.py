@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,6 +43,101 @@ class Table:
     drop_reasons: list[str] = field(default_factory=list)
 
 
+MAX_LINE_BYTES = 1 << 20
+"""The longest line a text log may have (1 MiB; a Sydney LASER.txt line of 361 ranges is about 3 kB): a
+file without line breaks is refused, not read whole."""
+
+
+def text_lines(path: Path) -> Iterator[tuple[int, str]]:
+    """(line number, text) of a UTF-8 text file read a line at a time, so memory stays flat in the file's
+    length. Lines are numbered as `str.splitlines` splits them (as `Path.read_text().splitlines()` does)."""
+    try:
+        f = open(path, "rb")
+    except FileNotFoundError:
+        raise IngestError(f"{path}: file not found") from None
+    except IsADirectoryError:
+        raise IngestError(f"{path}: a directory, not a text file") from None
+    with f:
+        offset = lineno = 0
+        while True:
+            raw = f.readline(MAX_LINE_BYTES + 1)
+            if not raw:
+                return
+            if len(raw) > MAX_LINE_BYTES:
+                raise IngestError(f"{path}:{lineno + 1}: a line longer than {MAX_LINE_BYTES >> 20} MiB: not a text log")
+            try:
+                text = raw.decode("utf-8")
+            except UnicodeDecodeError as e:
+                raise IngestError(f"{path}: not a text file ({e.reason} at byte {offset + e.start})") from None
+            offset += len(raw)
+            for line in text.splitlines():
+                lineno += 1
+                yield lineno, line
+
+
+class NumericCsv:
+    """A comma-separated numeric log, checked and read a row at a time (`rows()`).
+
+    Every non-empty line must have `columns` finite numbers (when `columns` is None, the first data
+    line sets the count), with a time a log time can hold in `time_column` (when given). A malformed
+    line raises `IngestError("file:line: why")`, or with `skip_bad_lines` is dropped and counted
+    (`dropped`, `drop_reasons`). A file with no data line raises `IngestError`. `text` parses a string
+    instead of the file.
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        columns: int | None,
+        skip_bad_lines: bool = False,
+        time_column: int | None = None,
+        text: str | None = None,
+    ) -> None:
+        self.path, self.columns, self.skip_bad_lines = path, columns, skip_bad_lines
+        self.time_column, self.text = time_column, text
+        self.dropped = 0
+        self.drop_reasons: list[str] = []
+
+    def rows(self) -> Iterator[tuple[int, list[float]]]:
+        """(1-based line number, values) of every good data line, in file order."""
+        path, columns = self.path, self.columns
+        self.dropped, self.drop_reasons = 0, []
+        lines = text_lines(path) if self.text is None else enumerate(self.text.splitlines(), start=1)
+        found = False
+        for lineno, raw in lines:
+            line = raw.strip()
+            if not line or line.startswith("#"):
+                continue
+            parts = line.split(",")
+            why = None
+            if columns is not None and len(parts) != columns:
+                why = f"expected {columns} comma-separated columns, found {len(parts)}"
+            else:
+                try:
+                    values = [float(p) for p in parts]
+                except ValueError:
+                    bad = next(p for p in parts if not _is_float(p))
+                    why = f"not a number: {bad.strip()[:30]!r}"
+                else:
+                    if not all(math.isfinite(v) for v in values):
+                        why = "non-finite value (NaN or infinity)"
+                    elif self.time_column is not None:
+                        why = time_problem(values[self.time_column])
+            if why is not None:
+                if not self.skip_bad_lines:
+                    raise IngestError(f"{path}:{lineno}: {why}")
+                self.dropped += 1
+                if len(self.drop_reasons) < 5:
+                    self.drop_reasons.append(f"{path}:{lineno}: {why}")
+                continue
+            if columns is None:
+                columns = self.columns = len(values)
+            found = True
+            yield lineno, values
+        if not found:
+            raise IngestError(f"{path}: no data lines (empty log)")
+
+
 def parse_numeric_csv(
     path: Path,
     columns: int | None,
@@ -49,57 +145,14 @@ def parse_numeric_csv(
     text: str | None = None,
     time_column: int | None = None,
 ) -> Table:
-    """Parse a comma-separated numeric log.
-
-    Every non-empty line must have `columns` finite numbers (when `columns` is None, the first data
-    line sets the count), with a time a log time can hold in `time_column` (when given). A malformed
-    line raises `IngestError("file:line: why")`, or with `skip_bad_lines` is dropped and counted. A
-    file with no data line raises `IngestError`.
-    """
-    if text is None:
-        try:
-            text = Path(path).read_text()
-        except FileNotFoundError:
-            raise IngestError(f"{path}: file not found") from None
-        except UnicodeDecodeError as e:
-            raise IngestError(f"{path}: not a text file ({e.reason} at byte {e.start})") from None
+    """A comma-separated numeric log read whole into a `Table` (the checks of `NumericCsv`)."""
+    csv = NumericCsv(path, columns, skip_bad_lines, time_column, text)
     rows: list[list[float]] = []
     lines: list[int] = []
-    dropped = 0
-    reasons: list[str] = []
-    for lineno, raw in enumerate(text.splitlines(), start=1):
-        line = raw.strip()
-        if not line or line.startswith("#"):
-            continue
-        parts = line.split(",")
-        why = None
-        if columns is not None and len(parts) != columns:
-            why = f"expected {columns} comma-separated columns, found {len(parts)}"
-        else:
-            try:
-                values = [float(p) for p in parts]
-            except ValueError:
-                bad = next(p for p in parts if not _is_float(p))
-                why = f"not a number: {bad.strip()[:30]!r}"
-            else:
-                if not all(math.isfinite(v) for v in values):
-                    why = "non-finite value (NaN or infinity)"
-                elif time_column is not None:
-                    why = time_problem(values[time_column])
-        if why is not None:
-            if not skip_bad_lines:
-                raise IngestError(f"{path}:{lineno}: {why}")
-            dropped += 1
-            if len(reasons) < 5:
-                reasons.append(f"{path}:{lineno}: {why}")
-            continue
-        if columns is None:
-            columns = len(values)
+    for lineno, values in csv.rows():
         rows.append(values)
         lines.append(lineno)
-    if not rows:
-        raise IngestError(f"{path}: no data lines (empty log)")
-    return Table(np.asarray(rows, dtype=float), np.asarray(lines), dropped, reasons)
+    return Table(np.asarray(rows, dtype=float), np.asarray(lines), csv.dropped, csv.drop_reasons)
 
 
 def _is_float(s: str) -> bool:

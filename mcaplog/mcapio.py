@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import json
 import os
+import re
+import stat
 import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -25,7 +27,7 @@ from mcap.writer import CompressionType, Writer
 from mcap_protobuf.decoder import DecoderFactory
 from mcap_protobuf.schema import register_schema
 
-from .tempfiles import temporary_for
+from .tempfiles import create_temporary
 
 NS = 1_000_000_000
 
@@ -41,8 +43,8 @@ class AtomicMcapWriter:
     def __init__(self, path: str | os.PathLike, profile: str = "", chunk_size: int = 1 << 20) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.tmp_path = temporary_for(self.path)
-        self._file = open(self.tmp_path, "wb")
+        fd, self.tmp_path = create_temporary(self.path)
+        self._file = os.fdopen(fd, "wb")
         self._writer = Writer(self._file, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         self._writer.start(profile=profile, library="gslam")
         self._channels: dict[str, int] = {}
@@ -73,9 +75,12 @@ class AtomicMcapWriter:
     def _add(self, channel_id: int, topic: str, log_time_ns: int, data: bytes) -> None:
         seq = self._sequence.get(topic, 0)
         self._sequence[topic] = seq + 1
-        self._writer.add_message(
-            channel_id=channel_id, log_time=log_time_ns, publish_time=log_time_ns, data=data, sequence=seq
-        )
+        try:
+            self._writer.add_message(
+                channel_id=channel_id, log_time=log_time_ns, publish_time=log_time_ns, data=data, sequence=seq
+            )
+        except OSError as e:  # disk full, I/O error: say which output
+            raise OSError(e.errno, e.strerror, str(self.path)) from None
 
     def write_proto(self, topic: str, message: Any, log_time_ns: int) -> None:
         """Write a protobuf message (a Foxglove schema) on `topic` at `log_time_ns`."""
@@ -100,9 +105,13 @@ class AtomicMcapWriter:
     def finish(self) -> Path:
         """Finish the MCAP (index, footer) and move it into place. Safe to call twice."""
         if not self.closed:
-            self._writer.finish()
-            self._file.close()
-            os.replace(self.tmp_path, self.path)
+            try:
+                self._writer.finish()
+                self._file.close()
+                os.replace(self.tmp_path, self.path)
+            except OSError as e:  # disk full, I/O error: nothing at the final path, the error names it
+                self.abort()
+                raise OSError(e.errno, e.strerror, str(self.path)) from None
             self.closed = True
         return self.path
 
@@ -111,6 +120,8 @@ class AtomicMcapWriter:
         if not self.closed:
             try:
                 self._file.close()
+            except OSError:
+                pass  # the data is dropped anyway
             finally:
                 self.tmp_path.unlink(missing_ok=True)
                 self.closed = True
@@ -142,6 +153,7 @@ class McapInput:
         self.path = Path(path)
         if not self.path.exists():
             raise FileNotFoundError(f"{self.path}: no such file")
+        require_regular_file(self.path, "an MCAP file")
 
     def _reader(self, f):
         return make_reader(f, decoder_factories=[DecoderFactory()])
@@ -177,6 +189,8 @@ class McapInput:
             wanted = None
             if summary is not None:
                 wanted = {cid for cid, c in summary.channels.items() if topics is None or c.topic in topics}
+            for c in summary.chunk_indexes if summary is not None else ():
+                check_chunk_size(c.uncompressed_size, c.chunk_start_offset)  # before any is decompressed
             chunks = _sequential_chunks(summary, wanted)
             if chunks is None:
                 records = (
@@ -195,6 +209,44 @@ class McapInput:
                 else:
                     value = _decode_proto(schema, data)
                 yield Message(channel.topic, log_time / NS, log_time, value)
+
+
+def read_error(e: BaseException) -> str:
+    """What went wrong reading an MCAP, for a one-line message: never the file's bytes (the mcap library
+    puts the first bytes of a file that is not an MCAP in its message), printable, at most 160 characters."""
+    from mcap.exceptions import InvalidMagic
+
+    if isinstance(e, InvalidMagic):
+        return "it does not begin with the MCAP magic bytes"
+    text = f"{type(e).__name__}: {e}".splitlines()[0] if str(e) else type(e).__name__
+    text = re.sub(r"b'[^']*'|b\"[^\"]*\"", "<bytes>", text)  # byte strings of the file's content
+    text = "".join(c if c.isprintable() else "?" for c in text)
+    return text if len(text) <= 160 else text[:157] + "..."
+
+
+MAX_CHUNK_BYTES = 256 << 20
+"""The largest decompressed chunk read (256 MiB): gslam writes 1 MiB chunks, ROS 2 bags about 1 MiB; a
+chunk claiming more is refused before it is decompressed, so a small file cannot take gigabytes."""
+
+
+def check_chunk_size(uncompressed_size: int, offset: int) -> None:
+    """Refuse a chunk that would decompress to more than `MAX_CHUNK_BYTES`."""
+    if uncompressed_size > MAX_CHUNK_BYTES:
+        raise ValueError(
+            f"the chunk at byte {offset} would decompress to {uncompressed_size} bytes, more than "
+            f"{MAX_CHUNK_BYTES >> 20} MiB: not an MCAP gslam reads"
+        )
+
+
+def require_regular_file(path: Path, what: str) -> None:
+    """Refuse anything but a regular file (a FIFO or a device would block or never end)."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return  # reported by whoever opens it
+    if not stat.S_ISREG(mode):
+        kind = "a directory" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else "a device or socket"
+        raise ValueError(f"{path}: {kind}, not a regular file; give {what}")
 
 
 def _sequential_chunks(summary: Any, channel_ids: set[int] | None) -> list[Any] | None:
@@ -225,7 +277,9 @@ def _chunk_messages(f: Any, chunk_index: Any, channel_ids: set[int]) -> list[tup
     (ties in file order). A damaged chunk raises (the library's errors, or ValueError for its records);
     the pipelines (`pipelines.run.input_log.converted`) report any of them as a damaged file."""
     f.seek(chunk_index.chunk_start_offset + 9)  # past the record's opcode and length
-    stream, size = get_chunk_data_stream(Chunk.read(ReadDataStream(f)))  # decompressed by the library
+    chunk = Chunk.read(ReadDataStream(f))
+    check_chunk_size(chunk.uncompressed_size, chunk_index.chunk_start_offset)
+    stream, size = get_chunk_data_stream(chunk)  # decompressed by the library
     payload = stream.read(size)
     out = []
     o, end = 0, len(payload)

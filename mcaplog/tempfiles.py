@@ -1,19 +1,44 @@
-"""Temporary files beside an output: `.NAME.PID.tmp`, written first and renamed to NAME when complete.
+"""Temporary files beside an output: `.NAME.PID-START-RANDOM.tmp`, written first and renamed to NAME when
+complete.
 
-A process killed with SIGKILL (or a machine that loses power) leaves its temporary behind; the next
-run that writes NAME removes every `.NAME.<pid>.tmp` whose process is no longer alive
-(`temporary_for`). `describe_temporary` says what such a file is, for `gslam info`.
+A temporary is created with `O_CREAT | O_EXCL | O_NOFOLLOW` under a name no other process can guess
+(`RANDOM`: 48 random bits), so a file or symlink planted beside an output is never opened or written
+through, whoever runs gslam. The name records the writing process's id and its start time (`START`, in
+clock ticks since boot, from `/proc`), so a later run can prove a temporary is a dead process's.
+
+A process killed with SIGKILL (or a machine that loses power) leaves its temporary behind; the next run
+that writes NAME removes the temporaries of NAME that it can prove are stale (`remove_stale_temporaries`):
+a regular file (not a symlink), owned by this user, whose recorded process is gone or is another process
+now (same id, other start time). Anything else beside the output is left alone. `describe_temporary`
+says what such a file is, for `gslam info`.
 No dependency on the rest of the project: ingest, the pipelines and the writers all use it.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import re
+import secrets
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 
-_TEMP = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)\.tmp$")
+_TEMP = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)-(?P<start>\d+)-(?P<rand>[0-9a-f]{12})\.tmp$")
+_FLAGS = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+
+
+def process_start(pid: int) -> int | None:
+    """The start time of process `pid` (clock ticks since boot, `/proc/PID/stat` field 22), None when it
+    does not exist or cannot be read (no /proc)."""
+    try:
+        raw = Path(f"/proc/{pid}/stat").read_bytes()
+    except OSError:
+        return None
+    try:  # the command name (field 2) is in parentheses and may hold spaces: count from the last ")"
+        return int(raw[raw.rindex(b")") + 2 :].split()[19])
+    except (ValueError, IndexError):
+        return None
 
 
 def pid_alive(pid: int) -> bool:
@@ -29,8 +54,28 @@ def pid_alive(pid: int) -> bool:
     return True
 
 
+def _writer_alive(pid: int, start: int) -> bool:
+    """Whether the process that created a temporary (id and recorded start time) still runs."""
+    if not pid_alive(pid):
+        return False
+    now = process_start(pid)
+    return now is None or start == 0 or now == start  # no /proc: cannot tell a reused id, assume alive
+
+
+_OWN_PID, _OWN_START = os.getpid(), process_start(os.getpid()) or 0
+
+
+def _own_start() -> int:
+    """This process's start time (re-read after a fork: a child has its own)."""
+    global _OWN_START, _OWN_PID
+    if _OWN_PID != os.getpid():
+        _OWN_PID, _OWN_START = os.getpid(), process_start(os.getpid()) or 0
+    return _OWN_START
+
+
 def remove_stale_temporaries(path: Path) -> list[Path]:
-    """Remove the temporaries of `path` left by processes that are no longer running; returns them."""
+    """Remove the temporaries of `path` that are provably stale: regular files of this user whose writing
+    process is gone; returns them."""
     path = Path(path)
     removed = []
     try:
@@ -41,13 +86,20 @@ def remove_stale_temporaries(path: Path) -> list[Path]:
         m = _TEMP.match(tmp.name)
         if m is None or m["name"] != path.name:
             continue
-        pid = int(m["pid"])
-        if pid != os.getpid() and not pid_alive(pid):
-            try:
-                tmp.unlink()
-                removed.append(tmp)
-            except OSError:
-                pass
+        try:
+            st = os.lstat(tmp)
+        except OSError:
+            continue
+        if not stat.S_ISREG(st.st_mode) or st.st_uid != os.geteuid():
+            continue
+        pid, start = int(m["pid"]), int(m["start"])
+        if pid == os.getpid() or _writer_alive(pid, start):
+            continue
+        try:
+            tmp.unlink()
+            removed.append(tmp)
+        except OSError:
+            pass
     return removed
 
 
@@ -55,24 +107,42 @@ def glob_escape(name: str) -> str:
     return re.sub(r"([*?\[])", r"[\1]", name)
 
 
-def temporary_for(path: Path) -> Path:
-    """The temporary to write before renaming to `path` (this process's), after removing stale ones."""
+def create_temporary(path: Path) -> tuple[int, Path]:
+    """Create this process's new temporary for `path` (after removing stale ones): an open descriptor
+    for writing and its path. Never opens an existing file or follows a symlink."""
     path = Path(path)
     remove_stale_temporaries(path)
-    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    for _ in range(100):
+        tmp = path.with_name(f".{path.name}.{os.getpid()}-{_own_start()}-{secrets.token_hex(6)}.tmp")
+        try:
+            return os.open(tmp, _FLAGS, 0o666), tmp
+        except FileExistsError:
+            continue
+    raise FileExistsError(errno.EEXIST, "cannot create a temporary file", str(path))
+
+
+def temporary_for(path: Path) -> Path:
+    """Create this process's new (empty) temporary for `path` and return its path, for a writer that opens
+    it by name; `create_temporary` gives the descriptor instead."""
+    fd, tmp = create_temporary(path)
+    os.close(fd)
+    return tmp
 
 
 def write_atomic(path: Path, content: str | bytes) -> Path:
-    """Write `content` to `path` through its temporary (no half-written file at `path`, ever)."""
+    """Write `content` to `path` through its temporary (no half-written file at `path`, ever). A failed
+    write (disk full, I/O error) removes the temporary and raises OSError naming `path`."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temporary_for(path)
+    data = content if isinstance(content, bytes) else content.encode()
+    fd, tmp = create_temporary(path)
     try:
-        if isinstance(content, bytes):
-            tmp.write_bytes(content)
-        else:
-            tmp.write_text(content)
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
         os.replace(tmp, path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise OSError(e.errno, e.strerror, str(path)) from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -96,17 +166,18 @@ class TemporaryInfo:
 
 
 def describe_temporary(path: Path) -> TemporaryInfo | None:
-    """What a `.NAME.PID.tmp` file is, or None when `path` is not named like one."""
+    """What a `.NAME.PID-START-RANDOM.tmp` file is, or None when `path` is not named like one."""
     path = Path(path)
     m = _TEMP.match(path.name)
     if m is None:
         return None
     pid = int(m["pid"])
-    return TemporaryInfo(path.with_name(m["name"]), pid, pid_alive(pid))
+    return TemporaryInfo(path.with_name(m["name"]), pid, _writer_alive(pid, int(m["start"])))
 
 
 def final_name(filename: str) -> str:
-    """The output a temporary stands for (`dir/.x.mcap.123.tmp` -> `dir/x.mcap`); other names unchanged."""
+    """The output a temporary stands for (`dir/.x.mcap.123-456-0a1b2c3d4e5f.tmp` -> `dir/x.mcap`); other
+    names unchanged."""
     p = Path(filename)
     m = _TEMP.match(p.name)
     return str(p.with_name(m["name"])) if m else filename

@@ -15,7 +15,9 @@ from pipelines.outputs.mcap_result import McapResultWriter
 from pipelines.outputs.rerun_result import RerunResultWriter
 from pipelines.outputs.writer import OccupancyMap, ResultWriter, RunEnd, RunStart
 from pipelines.outputs.writer_process import WriterProcess, usage
+from pipelines.run import interrupts
 from pipelines.run.input_log import InputLog
+from pipelines.run.recorded_input import fingerprint
 from pipelines.run.runner import RunConfig, SlamRunner
 from pipelines.run.startup import skip_blas_probe
 
@@ -107,6 +109,7 @@ def process(
             "config": cfg.as_dict(),
             "input": {
                 "path": str(Path(input_path).resolve()),
+                "fingerprint": fingerprint(Path(input_path)),
                 "dataset": log.meta.get("dataset", {}).get("name", ""),
                 "sensor": log.meta.get("sensor", {}),
                 "vehicle": log.meta.get("vehicle", {}),
@@ -130,11 +133,13 @@ def process(
     update_ms: list[float] = []
     interrupted = False
     error: BaseException | None = None
+    after_last_scan: KeyboardInterrupt | None = None
     t_start = time.perf_counter()
     first_t = last_t = None
     t_prev = t_start
     try:
         for st in runner.steps():
+            interrupts.check()  # a signal whose exception was swallowed on its way (interrupts.check)
             for w in writers:
                 w.step(st, runner.output_filter)
             now = time.perf_counter()
@@ -148,64 +153,85 @@ def process(
             last_t = st.event.t_s
             if progress is not None:
                 progress(st.event.index + 1, total, st.step_ms)
-    except (KeyboardInterrupt, Exception) as e:  # SIGINT, SIGTERM (signals.Stopped) or an error
-        interrupted = True
-        error = e
-    wall = time.perf_counter() - t_start
-    flt = runner.output_filter
-    summary = ProcessSummary(
-        steps=len(filter_ms),
-        scans_in_log=log.scan_count,
-        final_map_points=len(flt.map_points(flt.best_particle())[1]),
-        ms_per_step_median=float(np.median(step_ms)) if step_ms else float("nan"),
-        ms_per_step_filter_median=float(np.median(filter_ms)) if filter_ms else float("nan"),
-        ms_per_step_filter_mean=float(np.mean(filter_ms)) if filter_ms else float("nan"),
-        updates=len(update_ms),
-        ms_per_update_mean=float(np.mean(update_ms)) if update_ms else float("nan"),
-        ms_per_step_mean=float(np.mean(step_ms)) if step_ms else float("nan"),
-        wall_s=wall,
-        log_duration_s=(last_t - first_t) if first_t is not None else 0.0,
-        interrupted=interrupted,
-        output=Path(output_path),
-        rrd=Path(rrd_path) if rrd_path else None,
-    )
-    result_meta = {
-        "steps": summary.steps,
-        "scans_in_log": log.scan_count,
-        "max_scans": cfg.max_scans,
-        "interrupted": interrupted,
-        "error": None if error is None else repr(error),
-        "ms_per_step_median": summary.ms_per_step_median,
-        "ms_per_step_filter_median": summary.ms_per_step_filter_median,
-        "ms_per_step_filter_mean": summary.ms_per_step_filter_mean,
-        "updates": summary.updates,
-        "ms_per_update_mean": summary.ms_per_update_mean,
-        "ms_per_step_mean": summary.ms_per_step_mean,
-        "wall_s": wall,
-        "log_duration_s": summary.log_duration_s,
-        "real_time_factor": summary.real_time_factor,
-        "final_map_points": summary.final_map_points,
-        "peak_rss_mb": peak_rss_mb(),
-        "particles": cfg.filter.particles,
-        "points_per_observation": cfg.filter.points_per_observation,
-    }
+        interrupts.hold()  # from here a signal waits for the outputs (a signal before it is caught below)
+    except (KeyboardInterrupt, Exception) as e:  # SIGINT, SIGTERM (interrupts.Stopped) or an error
+        interrupts.hold()
+        interrupts.acknowledge()
+        if isinstance(e, KeyboardInterrupt) and len(filter_ms) >= total:
+            after_last_scan = e  # every scan was processed: the run is whole, finish it, then stop
+        else:
+            interrupted = True
+            error = e
     errors: list[Exception] = []
+    finished = False
     try:
-        occupancy = None
-        if cfg.occupancy and not interrupted and scan_indices:
-            occupancy = _occupancy(runner, log, scan_indices, cfg)
-        end = RunEnd(flt, result_meta, occupancy)
-        for w in reversed(writers):
-            try:
-                w.finish(end)
-            except Exception as e:  # this output is lost, not the others: finish them, then say so
-                w.abort()
-                errors.append(e)
+        # A signal from here on waits for the outputs to be finished (a second one aborts them).
+        with interrupts.deferred():
+            wall = time.perf_counter() - t_start
+            flt = runner.output_filter
+            summary = ProcessSummary(
+                steps=len(filter_ms),
+                scans_in_log=log.scan_count,
+                final_map_points=len(flt.map_points(flt.best_particle())[1]),
+                ms_per_step_median=float(np.median(step_ms)) if step_ms else float("nan"),
+                ms_per_step_filter_median=float(np.median(filter_ms)) if filter_ms else float("nan"),
+                ms_per_step_filter_mean=float(np.mean(filter_ms)) if filter_ms else float("nan"),
+                updates=len(update_ms),
+                ms_per_update_mean=float(np.mean(update_ms)) if update_ms else float("nan"),
+                ms_per_step_mean=float(np.mean(step_ms)) if step_ms else float("nan"),
+                wall_s=wall,
+                log_duration_s=(last_t - first_t) if first_t is not None else 0.0,
+                interrupted=interrupted,
+                output=Path(output_path),
+                rrd=Path(rrd_path) if rrd_path else None,
+            )
+            result_meta = {
+                "steps": summary.steps,
+                "scans_in_log": log.scan_count,
+                "max_scans": cfg.max_scans,
+                "interrupted": interrupted,
+                "error": None if error is None else repr(error),
+                "ms_per_step_median": summary.ms_per_step_median,
+                "ms_per_step_filter_median": summary.ms_per_step_filter_median,
+                "ms_per_step_filter_mean": summary.ms_per_step_filter_mean,
+                "updates": summary.updates,
+                "ms_per_update_mean": summary.ms_per_update_mean,
+                "ms_per_step_mean": summary.ms_per_step_mean,
+                "wall_s": wall,
+                "log_duration_s": summary.log_duration_s,
+                "real_time_factor": summary.real_time_factor,
+                "final_map_points": summary.final_map_points,
+                "peak_rss_mb": peak_rss_mb(),
+                "particles": cfg.filter.particles,
+                "points_per_observation": cfg.filter.points_per_observation,
+            }
+            occupancy = None
+            if cfg.occupancy and not interrupted and scan_indices:
+                occupancy = _occupancy(runner, log, scan_indices, cfg)
+            end = RunEnd(flt, result_meta, occupancy)
+            for w in reversed(writers):
+                try:
+                    w.finish(end)
+                except Exception as e:  # this output is lost, not the others: finish them, then say so
+                    w.abort()
+                    errors.append(e)
+            finished = True
+    except KeyboardInterrupt as stop:
+        if finished and error is None and not errors:  # the signal waited for the finish
+            written = " and ".join(str(p) for p in (output_path, rrd_path) if p is not None)
+            stop.add_note(f"wrote {written}: every scan was processed before the signal")
+        else:
+            _abort(writers)
+        raise
     except BaseException:
         _abort(writers)
         raise
     if errors:
         raise errors[0]
+    if after_last_scan is not None:
+        written = " and ".join(str(p) for p in (output_path, rrd_path) if p is not None)
+        after_last_scan.add_note(f"wrote {written}: every scan was processed before the signal")
+        raise after_last_scan
     if error is not None:
         written = " and ".join(str(p) for p in (output_path, rrd_path) if p is not None)
         error.add_note(f"wrote {written} with the {summary.steps} steps done, marked interrupted")

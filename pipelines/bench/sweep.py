@@ -30,6 +30,8 @@ from gslam import __version__
 from mcaplog.tempfiles import write_atomic
 from pipelines.methods import NAMES as METHODS
 
+SWEEP_FILES = ("results.csv", "results.md", "sweep.json")
+"""What a sweep writes at the top of its results directory (besides tasks/)."""
 SPEC_KEYS = {"inputs", "methods", "particles", "points", "seeds", "options", "keep_results", "rrd"}
 
 
@@ -73,6 +75,13 @@ class SweepSpec:
             return where_in_toml(path, text, table, key)
 
         checks = [("particles", "particles"), ("points", "points_per_observation"), ("seeds", "seed")]
+        for key, option in checks:  # each task's N, M and seed come from the top-level axes only
+            if option in options or key in options:
+                name = option if option in options else key
+                raise OptionError(
+                    f"{where(name, 'options')}: {name} in [options] would be ignored; give it as the "
+                    f"top-level key '{key}' (a list)"
+                )
         for key, option in checks:
             filter_config([Setting(option, v, where(key)) for v in as_list(data.get(key, []))])
         for key, values in options.items():
@@ -205,8 +214,33 @@ def executor_for(workers: int, scheduler: str | None):
     else:
         # Fresh interpreters, not forks: the filter's compiled loops run on a thread pool, and a fork of a
         # process whose pool has started inherits locks that no thread will release.
-        with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        pool = ProcessPoolExecutor(
+            max_workers=workers, mp_context=multiprocessing.get_context("spawn"), initializer=_worker_start
+        )
+        try:
             yield pool
+        except BaseException:  # Ctrl-C, SIGTERM, an error: the workers end with the sweep, not after it
+            for proc in list(getattr(pool, "_processes", {}).values()):
+                proc.terminate()
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+        pool.shutdown(wait=True)
+
+
+def _worker_start() -> None:
+    """In each local worker: leave Ctrl-C to the sweep (which ends the workers), and end when the sweep's
+    process does, even killed (Linux: the parent-death signal)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass  # not Linux: the pool's own checks end idle workers when the sweep is gone
+    if os.getppid() == 1:  # the sweep ended before the signal was set
+        os._exit(0)
 
 
 @dataclass

@@ -48,7 +48,7 @@ class Task:
 
     def command(self, output: Path, rrd: Path | None) -> list[str]:
         """The `gslam process` command line that runs this task (`python -m pipelines.cli`)."""
-        cmd = [sys.executable, "-m", "pipelines.cli", "process", str(self.input), str(output)]
+        cmd = [sys.executable, "-P", "-m", "pipelines.cli", "process", str(self.input), str(output)]
         cmd += ["--particles", str(self.particles), "--seed", str(self.seed)]
         if self.points != FilterConfig.points_per_observation:
             cmd += ["--points", str(self.points)]

@@ -1,6 +1,49 @@
 """The `gslam` command line (`app`): a thin typer layer over the pipelines, with its one-line errors
-(`errors`), signals (`signals`) and progress reporting (`progress`)."""
+(`errors`) and progress reporting (`progress`); signals are `pipelines.run.interrupts`.
 
-from pipelines.cli.app import app, run
+`run` is the console script. It handles SIGINT and SIGTERM before it imports anything heavy, so a
+Ctrl-C at any moment, even while typer, numpy or numba load, ends with one line and 130 / 143."""
+
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+
+def _interrupted(code: int) -> None:
+    from pipelines.run import interrupts
+
+    when = (
+        "after the command had finished (its outputs are written)"
+        if interrupts.after_command()
+        else "before the command started"
+    )
+    try:
+        sys.stderr.write(f"interrupted {when}\n")
+    except (OSError, ValueError):
+        pass
+    sys.exit(code)
+
+
+def run() -> None:
+    """The `gslam` console script."""
+    from pipelines.run import interrupts
+
+    interrupts.install()
+    try:
+        from pipelines.cli.app import run as run_app
+
+        run_app()
+    except KeyboardInterrupt as e:  # outside a command (a command's own are handled by `errors.guarded`)
+        _interrupted(interrupts.exit_code_of(e))
+
+
+def __getattr__(name: str) -> Any:
+    if name == "app":
+        from pipelines.cli.app import app
+
+        return app
+    raise AttributeError(name)
+
 
 __all__ = ["app", "run"]

@@ -1,5 +1,5 @@
 """`python -m pipelines.cli`: the `gslam` command."""
 
-from pipelines.cli.app import run
+from pipelines.cli import run
 
 run()

@@ -258,6 +258,7 @@ def process(
     rrd_path = None if no_rrd else (rrd or output.with_suffix(".rrd"))
     # Started first, before numpy and numba are imported: see writer_process.start_rerun_writer.
     rrd_writer = None if rrd_path is None else start_rerun_writer(rrd_path)
+    summary = None
     try:
         from pipelines.process import process as run_process
         from pipelines.run.options import Setting, parse_set, run_config
@@ -279,14 +280,17 @@ def process(
         check_outputs({"OUTPUT": output, "--rrd": rrd_path}, {"INPUT": input, "--config": config})
         with reporting("G-SLAM", "scans") as (report, _):
             summary = run_process(input, output, rrd_path, cfg, report, command=invocation(ctx), rrd_writer=rrd_writer)
-    except BaseException:
+        typer.echo(summary.describe())
+        typer.echo(f"wrote {summary.output}")
+        if summary.rrd is not None:
+            typer.echo(f"wrote {summary.rrd}  (open it with: rerun {summary.rrd})")
+    except BaseException as e:
         if rrd_writer is not None:
             rrd_writer.abort()  # nothing to do once the run has finished or aborted it
+        if isinstance(e, KeyboardInterrupt) and summary is not None:  # a signal after the run was written
+            written = " and ".join(str(p) for p in (summary.output, summary.rrd) if p is not None)
+            e.add_note(f"wrote {written}: every scan was processed before the signal")
         raise
-    typer.echo(summary.describe())
-    typer.echo(f"wrote {summary.output}")
-    if summary.rrd is not None:
-        typer.echo(f"wrote {summary.rrd}  (open it with: rerun {summary.rrd})")
 
 
 @app.command("eval")
@@ -326,13 +330,20 @@ def plot(
     ] = None,
 ) -> None:
     """The map's probability with the path, GPS and poles; and the position error against time."""
-    from pipelines.evaluation.evaluate import recorded_input
+    from pipelines.errors import InputError
+    from pipelines.evaluation.evaluate import read_result, recorded_input
     from pipelines.evaluation.plot import plot_result
+    from pipelines.run.recorded_input import recorded_input as checked_input
 
     inputs = {"RESULT": result, "--reference": reference} if reference else {"RESULT": result}
     if reference is None:
         inputs["INPUT (named in RESULT)"] = recorded_input(result)
     check_outputs({"-o": output}, inputs)
+    if reference is None:  # the input the result names, if it is still that file; else no GPS or poles
+        try:
+            reference = checked_input(result, read_result(result).metadata, "--reference")
+        except InputError as e:
+            typer.secho(f"note: {e}; plotting without its GPS and poles", fg=typer.colors.YELLOW, err=True)
     typer.echo(f"wrote {plot_result(result, output, reference)}")
 
 
@@ -361,7 +372,13 @@ def export(
         fail("nothing to export: give --tum, --map and/or --occupancy")
     if not resolution > 0:
         fail(f"--resolution must be positive, got {resolution}")
-    check_outputs({"--tum": tum, "--map": map_csv, "--occupancy": occupancy}, {"RESULT": result})
+    from pipelines.evaluation.evaluate import recorded_input
+
+    pgm = occupancy.with_suffix(".pgm") if occupancy is not None else None
+    check_outputs(
+        {"--tum": tum, "--map": map_csv, "--occupancy": occupancy, "the PGM beside --occupancy": pgm},
+        {"RESULT": result, "--input": input, "INPUT (named in RESULT)": recorded_input(result)},
+    )
     for path in export_result(result, tum, map_csv, occupancy, input, resolution):
         typer.echo(f"wrote {path}")
 
@@ -550,11 +567,13 @@ def sweep(
     resume: Annotated[bool, typer.Option("--resume", help="Skip tasks whose results exist and are complete.")] = False,
 ) -> None:
     """Run process + eval over a grid of logs and parameters, locally or on a Dask cluster."""
-    from pipelines.bench.sweep import SweepSpec, run_sweep
+    from pipelines.bench.sweep import SWEEP_FILES, SweepSpec, run_sweep
 
     sweep_spec = SweepSpec.load(spec)
     if output.exists() and not output.is_dir():
         fail(f"-o {output} is a file; give a directory for the results")
+    inputs = {"SPEC": spec, **{f"input {p}": Path(p) for p in sweep_spec.inputs}}
+    check_outputs({f"the sweep's {name}": output / name for name in SWEEP_FILES}, inputs)
     with reporting("sweep", "tasks") as (report, _):
         result = run_sweep(sweep_spec, output, workers, scheduler, resume, report)
     where = scheduler or f"{workers} local workers"

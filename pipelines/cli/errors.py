@@ -10,14 +10,16 @@ from __future__ import annotations
 
 import functools
 import os
+import signal
 import sys
 
 import typer
 from typer.core import TyperGroup
 
 from mcaplog.tempfiles import final_name
-from pipelines.cli.signals import exit_code_of, stop_on_signals
 from pipelines.errors import InputError, OptionError, OutputError
+from pipelines.run import interrupts
+from pipelines.run.interrupts import exit_code_of, stop_on_signals
 
 
 def fail(message: str, code: int = 2) -> None:
@@ -45,7 +47,14 @@ class OneLineErrors(TyperGroup):
             where = getattr(getattr(e, "ctx", None), "command_path", None) or "gslam"
             typer.secho(f"error: {e.format_message()} (see: {where} --help)", fg=typer.colors.RED, err=True)
             sys.exit(e.exit_code)
-        except typer.Abort:
+        except typer.Abort:  # click's name for a KeyboardInterrupt outside a command (while parsing)
+            signum = interrupts.received()
+            if signum is not None:
+                after = (
+                    " after the command had finished (its outputs are written)" if interrupts.after_command() else ""
+                )
+                typer.secho(f"interrupted ({signal.Signals(signum).name}){after}", fg=typer.colors.YELLOW, err=True)
+                sys.exit(128 + signum)
             typer.secho("error: aborted", fg=typer.colors.RED, err=True)
             sys.exit(1)
         sys.exit(code if isinstance(code, int) else 0)
@@ -67,7 +76,9 @@ def guarded(fn):
 
         with stop_on_signals():
             try:
-                return fn(*args, **kwargs)
+                done = fn(*args, **kwargs)
+                interrupts.command_finished()
+                return done
             except typer.Exit:
                 raise
             except (IngestError, InputError, OptionError, OutputError) as e:

@@ -12,7 +12,7 @@ import numpy as np
 
 from gslam.config import FilterConfig
 from gslam.vehicle import vehicle_preset
-from mcaplog.tempfiles import temporary_for
+from mcaplog.tempfiles import create_temporary
 from pipelines.demo.world import SimConfig, SydneyLog, distance_to_obstacles, simulate_sydney_log
 from pipelines.evaluation.evaluate import evaluate_result, read_result
 from pipelines.evaluation.plot import plot_result
@@ -34,13 +34,18 @@ def write_sydney_text(log: SydneyLog, directory: Path) -> Path:
         "WALLS.txt": (log.world.walls, "%.4f"),
     }
     for name, (arr, fmt) in files.items():
-        tmp = temporary_for(directory / name)
+        fd, tmp = create_temporary(directory / name)
         if name == "LASER.txt":
             fmt = ["%.3f"] + ["%.2f"] * (arr.shape[1] - 1)
         elif name == "INTENSITY.txt":
             fmt = ["%.3f"] + ["%d"] * (arr.shape[1] - 1)
-        np.savetxt(tmp, arr, fmt=fmt, delimiter=",")
-        os.replace(tmp, directory / name)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.savetxt(f, arr, fmt=fmt, delimiter=",")
+            os.replace(tmp, directory / name)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
     return directory
 
 

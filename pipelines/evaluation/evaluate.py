@@ -10,10 +10,11 @@ from typing import Any
 import numpy as np
 
 from mcaplog import channels as ch
-from mcaplog.mcapio import McapInput, Message
+from mcaplog.mcapio import McapInput, Message, read_error
 from pipelines.errors import InputError
 from pipelines.evaluation.metrics import gps_mean_error, gps_rmse_aligned, pole_map_error, relations_error
 from pipelines.run.input_log import converted
+from pipelines.run.recorded_input import recorded_input as checked_input
 
 METRIC_KEYS = (
     "gps_mean_error_m",
@@ -52,7 +53,7 @@ def read_result(path: Path) -> ResultData:
     try:
         meta = src.metadata()
     except Exception as e:
-        raise InputError(f"{path}: not a readable MCAP file ({type(e).__name__}: {e})") from None
+        raise InputError(f"{path}: not a readable MCAP file ({read_error(e)})") from None
     if "result" not in meta or "config" not in meta:
         raise InputError(f"{path}: no 'result'/'config' metadata; is this a result of `gslam process`?")
     t, stamp, online, step_ms = [], [], [], []
@@ -131,7 +132,7 @@ def _check_reference(reference: Path) -> McapInput:
     try:
         meta = ref.metadata()
     except Exception as e:  # the mcap library raises several types for a damaged file
-        raise InputError(f"{reference}: not a readable MCAP file ({type(e).__name__}: {e})") from None
+        raise InputError(f"{reference}: not a readable MCAP file ({read_error(e)})") from None
     if "result" in meta:
         raise InputError(
             f"--reference {reference} is a result of `gslam process`; give the input MCAP the run read "
@@ -171,10 +172,7 @@ def evaluate_result(result: Path, reference: Path | None = None) -> dict[str, An
     res = read_result(result)
     meta = res.metadata
     if reference is None:
-        ref_path = meta.get("input", {}).get("path")
-        if not ref_path or not Path(ref_path).exists():
-            raise InputError(f"{result}: its input {ref_path!r} is not there; pass --reference INPUT.mcap")
-        reference = Path(ref_path)
+        reference = checked_input(result, meta, "--reference")
     ref = _check_reference(reference)
     notes: list[str] = []
     partial = partial_note(meta)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from mcaplog.mcapio import NS, McapInput
+from mcaplog.mcapio import NS, McapInput, read_error
 from pipelines.errors import InputError
 
 
@@ -16,7 +16,7 @@ def mcap_info(path: Path) -> dict[str, Any]:
         summary = src.summary()
         metadata = src.metadata()
     except Exception as e:  # the mcap library raises several types for a damaged file
-        raise InputError(f"{path}: not a readable MCAP file ({type(e).__name__}: {e})") from None
+        raise InputError(f"{path}: not a readable MCAP file ({read_error(e)})") from None
     if summary is None or summary.statistics is None:
         raise InputError(f"{path}: MCAP has no summary section (unfinished file?)")
     stats = summary.statistics

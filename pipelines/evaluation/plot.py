@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from mcaplog.mcapio import McapInput
-from mcaplog.tempfiles import temporary_for
+from mcaplog.tempfiles import create_temporary
 from pipelines.evaluation.evaluate import read_result, reference_truth
 from pipelines.evaluation.metrics import interpolate_positions
 
@@ -26,10 +26,14 @@ def plot_result(result: Path, out: Path, reference: Path | None = None) -> Path:
     fig = result_figure(result, reference)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temporary_for(out)
+    fd, tmp = create_temporary(out)
     try:
-        fig.savefig(tmp, dpi=110, format="png")
-        os.replace(tmp, out)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                fig.savefig(f, dpi=110, format="png")
+            os.replace(tmp, out)
+        except OSError as e:  # disk full, I/O error: name the user's path
+            raise OSError(e.errno, e.strerror, str(out)) from None
     finally:
         plt.close(fig)
         tmp.unlink(missing_ok=True)
@@ -44,10 +48,9 @@ def result_figure(result: Path, reference: Path | None = None):
     import matplotlib.pyplot as plt
 
     res = read_result(result)
-    ref_path = reference or Path(res.metadata.get("input", {}).get("path", ""))
     gps = poles = None
-    if ref_path and Path(ref_path).exists():
-        gps, poles, _ = reference_truth(McapInput(ref_path))
+    if reference is not None:
+        gps, poles, _ = reference_truth(McapInput(reference))
     # Constrained layout keeps titles, labels, the colour bar and the legends (below the axes, off the
     # data) inside the figure.
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(14, 7.5), gridspec_kw={"width_ratios": [1.4, 1]}, layout="constrained")

@@ -85,9 +85,9 @@ def grid_from_result(
     res = read_result(result)
     meta = res.metadata
     if input_path is None:
-        input_path = Path(meta.get("input", {}).get("path", ""))
-        if not input_path.is_file():
-            raise InputError(f"{result}: its input {input_path} is not there; give the input MCAP with --input")
+        from pipelines.run.recorded_input import recorded_input
+
+        input_path = recorded_input(result, meta, "--input")
     log = InputLog(Path(input_path))
     scan_indices = [m.value["scan_index"] for m in McapInput(result).messages([ch.SLAM_STATS])]
     if len(scan_indices) != len(res.trajectory):

@@ -8,7 +8,7 @@ import errno
 import os
 from pathlib import Path
 
-from mcaplog.tempfiles import temporary_for
+from mcaplog.tempfiles import create_temporary
 from pipelines.errors import OutputError
 
 Labelled = dict[str, Path | None]
@@ -39,11 +39,8 @@ def _writable_dir(label: str, path: Path) -> None:
         parent = parent.parent
     if not parent.is_dir():
         raise OutputError(f"{label} {path}: cannot create it, {parent} is not a directory")
-    probe = temporary_for(path) if parent == path.parent else parent / f".gslam-probe.{os.getpid()}.tmp"
     try:
-        fd = os.open(probe, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-    except FileExistsError:
-        return
+        fd, probe = create_temporary(parent / path.name)
     except OSError as e:
         why = os.strerror(e.errno) if e.errno else str(e)
         if e.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
@@ -53,15 +50,27 @@ def _writable_dir(label: str, path: Path) -> None:
     probe.unlink(missing_ok=True)
 
 
+def _resolvable(label: str, path: Path) -> None:
+    """Refuse a path that cannot be resolved (a symlink loop, a name too long)."""
+    try:
+        path.resolve()
+    except (OSError, RuntimeError) as e:  # RuntimeError: Python's "Symlink loop from ..."
+        why = e.strerror if isinstance(e, OSError) and e.strerror else "a symlink loop"
+        raise OutputError(f"{label} {path}: cannot be resolved ({why}); give another path") from None
+
+
 def check_outputs(outputs: Labelled, inputs: Labelled) -> None:
     """`outputs` and `inputs` map a label as the user typed it (`-o`, `--rrd`, `INPUT`) to a path
     (None: not given). Raises OutputError for the first output that cannot be written safely."""
     given_in = {k: Path(v) for k, v in inputs.items() if v is not None}
+    for label, src in given_in.items():
+        _resolvable(label, src)
     seen: dict[str, Path] = {}
     for label, out in outputs.items():
         if out is None:
             continue
         out = Path(out)
+        _resolvable(label, out)
         for in_label, src in given_in.items():
             if src.exists() and _same(out, src):
                 raise OutputError(

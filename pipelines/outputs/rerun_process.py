@@ -14,7 +14,9 @@ caller's own temporaries are, for the next run to remove.
 
 from __future__ import annotations
 
+import errno
 import importlib.abc
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -119,15 +121,50 @@ class Recorder:
                 rec.log(entity.GRID_OCCUPANCY, rr.Image(final["occupancy_image"]))
             rec.log(entity.TRAJECTORY, rr.LineStrips2D([final["trajectory"]], colors=[[230, 30, 30]], radii=0.1))
             rec.log(entity.ONLINE, rr.LineStrips2D([final["online"]], colors=[[60, 120, 255]], radii=0.05))
-        self.close()
+        self.finish_file()
 
     def close(self) -> None:
         self.rec.flush()
         self.rec.disconnect()
 
+    def finish_file(self) -> None:
+        """Close the recording and check that all of it reached the disk: rerun's file sink reports a
+        failed write (a full disk, an I/O error) only in its log, so the file must end with the RRD
+        footer rerun writes last; a file that does not is refused, naming the cause when it is a full disk."""
+        try:
+            self.close()
+        except RuntimeError as e:  # rerun's file writer thread gave up
+            full = _disk_full(self.path.parent)
+            raise OSError(
+                errno.ENOSPC if full else errno.EIO,
+                "No space left on device" if full else f"rerun could not write it ({str(e).splitlines()[0]})",
+            ) from None
+        with open(self.path, "rb") as f:
+            size = os.fstat(f.fileno()).st_size
+            f.seek(max(0, size - len(RRD_END) - 4))
+            tail = f.read()
+        if RRD_END not in tail:
+            full = _disk_full(self.path.parent)
+            raise OSError(
+                errno.ENOSPC if full else errno.EIO,
+                "No space left on device: the recording was cut short" if full else "the recording was cut short",
+            )
+
     def abort(self) -> None:
         self.close()
         self.path.unlink(missing_ok=True)
+
+
+RRD_END = b"RRF2FOOT"
+"""The last record of an RRD file (its footer's magic, then a 4-byte version), written when the file sink
+closes."""
+
+
+def _disk_full(directory: Path) -> bool:
+    try:
+        return os.statvfs(directory).f_bavail == 0
+    except OSError:
+        return False
 
 
 class _NoPandas(importlib.abc.MetaPathFinder):

@@ -1,12 +1,13 @@
 """Output files written by processes of their own, so that encoding and writing them runs on a core the
 filter leaves idle (between its updates the filter is one Python thread) instead of in the filter's.
 
-Parent side, `WriterProcess`: starts `python -m MODULE`, sends it pickled commands through a queue and a
-sender thread (the filter never waits on the pipe), reads its one-line JSON replies. Child side, `serve`:
-reads the commands and calls the handler's methods. Commands: ("open", ...) first (replied to), then
-any of the handler's own, then ("finish", ...) (replied to, with the process's peak memory and processor
-time) or ("abort",). When its input ends without either (the caller was killed) the handler's `close`
-keeps what was received. The file is always the caller's temporary: the caller renames it after "finish".
+Parent side, `WriterProcess`: starts `python -P -m MODULE` (the working directory off its import path),
+sends it pickled commands through a queue and a sender thread (the filter never waits on the pipe),
+reads its one-line JSON replies. Child side, `serve`: reads the commands and calls the handler's
+methods. Commands: ("open", ...) first (replied to), then any of the handler's own, then ("finish", ...)
+(replied to, with the process's peak memory and processor time) or ("abort",). When its input ends
+without either (the caller was killed) the handler's `close` keeps what was received. The file is always
+the caller's temporary: the caller renames it after "finish".
 This module imports only the standard library, so the writer processes stay small.
 """
 
@@ -17,10 +18,12 @@ import os
 import pickle
 import queue
 import resource
+import select
 import signal
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -29,11 +32,25 @@ from pipelines.errors import OutputError
 
 
 def _environment() -> dict[str, str]:
-    """This process's environment, with `pipelines` importable by the writer process however it was."""
+    """This process's environment, with `pipelines` importable by the writer process however it was, and
+    no relative entry on its import path (an empty or relative PYTHONPATH entry is the working directory)."""
     root = str(Path(__file__).resolve().parents[2])
     env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
+    user = [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p and os.path.isabs(p)]
+    env["PYTHONPATH"] = os.pathsep.join([root, *user])
+    env.pop("PYTHONSTARTUP", None)
     return env
+
+
+def python_command(module: str) -> list[str]:
+    """`python -P -m module`: -P keeps the working directory off the child's import path, so a `numpy.py`
+    (or any module) lying where gslam is run is never imported by the child."""
+    return [sys.executable, "-P", "-m", module]
+
+
+STALL_TIMEOUT_S = 60.0
+"""A writer process that takes no input and gives no reply for this long is killed
+(`GSLAM_WRITER_TIMEOUT_S` sets another bound)."""
 
 
 class WriterProcess:
@@ -48,12 +65,14 @@ class WriterProcess:
         self.cpu_s = float("nan")
         """The writer process's processor time (user + system, s), known after `finish`."""
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", module],
+            python_command(module),
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             start_new_session=True,  # a Ctrl-C at the terminal reaches the caller, which then finishes it
             env=_environment(),
         )
+        self.stall_timeout_s = float(os.environ.get("GSLAM_WRITER_TIMEOUT_S", STALL_TIMEOUT_S))
+        self._progress_at = time.monotonic()
         self._queue: queue.Queue[tuple | None] = queue.Queue()
         self._send_error: OSError | None = None
         self._sender = threading.Thread(target=self._send_loop, name=f"{module}-sender", daemon=True)
@@ -72,6 +91,7 @@ class WriterProcess:
             try:
                 pickle.dump(command, self.proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
                 self.proc.stdin.flush()
+                self._progress_at = time.monotonic()
             except OSError as e:  # BrokenPipeError: the writer stopped
                 self._send_error = e
         try:
@@ -82,14 +102,33 @@ class WriterProcess:
     def send(self, command: tuple) -> None:
         self._queue.put(command)
 
+    def _wait(self, done: Callable[[], bool]) -> None:
+        """Wait until `done()`, in short steps (signals are handled meanwhile), while the writer makes
+        progress: after `stall_timeout_s` without any (a writer stopped, e.g. by SIGSTOP, or hung) it is
+        killed and OutputError says so."""
+        while not done():
+            if time.monotonic() - self._progress_at > self.stall_timeout_s:
+                self.proc.kill()
+                self.proc.wait()
+                raise OutputError(
+                    f"{self.path}: the writer of {self.what} stopped answering for {self.stall_timeout_s:g} s "
+                    "and was killed"
+                )
+            time.sleep(0.02)
+
     def _close_input(self) -> None:
         """Send what is queued, close the writer's input and wait for the sender (not the writer)."""
         if self._sender.is_alive():
             self._queue.put(None)
-            self._sender.join()
+            self._wait(lambda: not self._sender.is_alive())
 
     def _reply(self) -> dict[str, Any]:
+        def readable() -> bool:
+            return bool(select.select([self.proc.stdout], [], [], 0)[0])
+
+        self._wait(readable)
         line = self.proc.stdout.readline()
+        self._progress_at = time.monotonic()
         if not line:
             self.proc.wait()
             raise OutputError(f"{self.path}: the writer of {self.what} stopped (exit {self.proc.returncode})")
@@ -104,20 +143,19 @@ class WriterProcess:
         self._close_input()
         self._reply()  # to "open"
         reply = self._reply()  # to "finish"
-        self.proc.wait()
+        self._wait(lambda: self.proc.poll() is not None)
         self.peak_rss_mb = float(reply.get("peak_rss_mb", float("nan")))
         self.cpu_s = float(reply.get("cpu_s", float("nan")))
 
     def abort(self) -> None:
-        """Tell the writer to drop its file and end (killed after 30 s)."""
+        """Tell the writer to drop its file and end (killed when it does not within its stall timeout)."""
         if self.proc.poll() is None:
             self.send(("abort",))
-            self._close_input()
             try:
-                self.proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+                self._close_input()
+                self._wait(lambda: self.proc.poll() is not None)
+            except OutputError:
+                pass  # killed: the caller removes the temporary
 
 
 def start_rerun_writer(path: Path) -> WriterProcess:
@@ -179,7 +217,8 @@ def serve(opener: Callable[..., Any], commands: BinaryIO, replies: BinaryIO) -> 
             else:
                 getattr(handler, kind)(*args)
     except Exception as e:  # one line for the caller, which raises it as its own error
-        _reply(replies, error=f"{type(e).__name__}: {e}".splitlines()[0])
+        why = e.strerror if isinstance(e, OSError) and e.strerror else f"{type(e).__name__}: {e}"
+        _reply(replies, error=why.splitlines()[0])
         return 1
 
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from gslam.scan import ScanGeometry
 from mcaplog import channels as ch
-from mcaplog.mcapio import McapInput, Message
+from mcaplog.mcapio import McapInput, Message, read_error
 from pipelines.errors import InputError
 from pipelines.run.mount import LaserMount
 
@@ -66,7 +66,7 @@ class InputLog:
             self.meta: dict[str, Any] = self.mcap.metadata()
             summary = self.mcap.summary()
         except Exception as e:
-            raise InputError(f"{self.path}: not a readable MCAP file ({type(e).__name__}: {e})") from None
+            raise InputError(f"{self.path}: not a readable MCAP file ({read_error(e)})") from None
         if "result" in self.meta:
             raise InputError(
                 f"{self.path}: a result of `gslam process`, not an input; give the MCAP from `gslam ingest`"
@@ -202,7 +202,7 @@ def converted(mcap: McapInput, topics: list[str], convert: Callable[[Message], T
         except StopIteration:
             return
         except Exception as e:  # the mcap, zstd and protobuf libraries raise many types for damaged data
-            raise InputError(f"{mcap.path}: damaged MCAP after message {n} ({type(e).__name__}: {e})") from None
+            raise InputError(f"{mcap.path}: damaged MCAP after message {n} ({read_error(e)})") from None
         try:
             out = convert(msg)
         except (AttributeError, IndexError, KeyError, TypeError, ValueError) as e:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -22,6 +23,9 @@ from pipelines.methods import make_filter, method
 from pipelines.run.input_log import ControlEvent, GpsEvent, InputLog, OdomEvent, ScanEvent
 from pipelines.run.mount import BaseFrameView
 from pipelines.run.odometry_check import ReversalCheck
+
+MAX_THREADS = max(64, 4 * (os.cpu_count() or 1))
+"""The most threads a run may ask for (`RunConfig.threads`): more than the cores only adds work spaces."""
 
 
 @dataclass
@@ -45,8 +49,8 @@ class RunConfig:
     laser_yaw_offset_rad: float = 0.0
     """Mounting yaw of the laser relative to the vehicle axis, added to every bearing (calibration)."""
     threads: int | None = None
-    """Worker threads of the filter's compiled particle loops (None: every core). Results do not depend
-    on it."""
+    """Worker threads of the filter's compiled particle loops (None: every core; at most `MAX_THREADS`,
+    each holds a work space of its own). Results do not depend on it."""
     odometry_reversal_check: bool = True
     """Turn around the odometry increments whose direction contradicts the velocity logged with them (a
     driver that reports backing up as going forward; `pipelines.run.odometry_check`). Odometry without
@@ -64,6 +68,8 @@ class RunConfig:
         "max_scans": (1, math.inf, True),
         "grid_cells": (16, 10_000_000, True),
         "laser_yaw_offset_rad": (-math.pi, math.pi, True),
+        "threads": (1, MAX_THREADS, True),
+        "occupancy_resolution_m": (0.0, 10.0, False),
     }
 
     def __post_init__(self) -> None:
