@@ -76,6 +76,9 @@ def carmen_geometry(beam_count: int, max_range_m: float = CARMEN_NO_RETURN_M) ->
     return ScanGeometry(beam_count, -math.pi / 2, step, max_range_m)
 
 
+MAX_BEAMS = 100_000
+"""The most beams a scan may have (what `gslam process` accepts)."""
+
 MAX_LINE_BYTES = 1 << 20
 """The longest line read (1 MiB; a FLASER line of 1 081 beams is about 10 kB): a file without line breaks
 is refused, not read whole."""
@@ -191,6 +194,8 @@ class _Parser:
             n = int(parts[1])
         except (IndexError, ValueError):
             return self.bad(lineno, "FLASER without a beam count")
+        if not 1 <= n <= MAX_BEAMS:
+            return self.bad(lineno, f"FLASER with {n} beams (a scan has 1 to {MAX_BEAMS} beams)")
         if len(parts) < n + 9:
             return self.bad(
                 lineno,
