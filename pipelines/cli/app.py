@@ -21,7 +21,8 @@ app = typer.Typer(
     name="gslam",
     help="G-SLAM: generative particle-filter SLAM with point maps, for MCAP logs and Rerun.",
     no_args_is_help=True,
-    add_completion=False,
+    add_completion=True,  # --install-completion / --show-completion for bash, zsh, fish, PowerShell
+    context_settings={"help_option_names": ["-h", "--help"]},
     pretty_exceptions_enable=False,
     rich_markup_mode=None,  # help text as written: "[filter]" is a word, not markup
     cls=OneLineErrors,
@@ -172,16 +173,41 @@ def info(
     width = max((len(t) for t in data["channels"]), default=10)
     for topic, count in data["channels"].items():
         typer.echo(f"  {topic:<{width}}  {count:>7}  {data['schemas'][topic]}")
-    for name, record in data["metadata"].items():
-        typer.echo(f"  metadata {name}: {json.dumps(record)[:200]}")
+    for name, record in data["metadata"].items():  # in full: the sensor's mount, the run's configuration
+        typer.echo(f"  metadata {name}:")
+        for key, value in record.items() if isinstance(record, dict) else [("", record)]:
+            shown = value if isinstance(value, str) else json.dumps(value)
+            typer.echo(f"    {key} = {shown}" if key else f"    {shown}")
+
+
+def _one_output(positional: Path | None, option: Path | None) -> Path:
+    """The output given as OUTPUT or as -o (either; both only when they agree)."""
+    if positional is not None and option is not None and positional != option:
+        fail(f"two outputs: OUTPUT {positional} and -o {option}; give one")
+    output = positional or option
+    if output is None:
+        fail("no output: give the result MCAP to write, as OUTPUT or with -o")
+    return output
 
 
 @app.command()
 @guarded
 def process(
     ctx: typer.Context,
-    input: Annotated[Path, typer.Argument(metavar="INPUT", help="Input MCAP from `gslam ingest`.")],
-    output: Annotated[Path, typer.Argument(metavar="OUTPUT", help="Result MCAP to write.")],
+    input: Annotated[
+        Path,
+        typer.Argument(
+            metavar="INPUT",
+            help="Input MCAP from `gslam ingest`, or a log or bag (ingested first into OUTPUT.input.mcap).",
+        ),
+    ],
+    output_arg: Annotated[
+        Path | None,
+        typer.Argument(metavar="OUTPUT", help="Result MCAP to write (or give it with -o).", show_default=False),
+    ] = None,
+    output_opt: Annotated[
+        Path | None, typer.Option("-o", "--output", help="Result MCAP to write (the same as OUTPUT).")
+    ] = None,
     rrd: Annotated[
         Path | None,
         typer.Option("--rrd", help="Rerun recording to write.", show_default="OUTPUT with .rrd"),
@@ -255,6 +281,7 @@ def process(
     """Run G-SLAM (or a baseline) over an input MCAP; write the result MCAP and a Rerun recording."""
     from pipelines.outputs.writer_process import start_rerun_writer
 
+    output = _one_output(output_arg, output_opt)
     rrd_path = None if no_rrd else (rrd or output.with_suffix(".rrd"))
     # Started first, before numpy and numba are imported: see writer_process.start_rerun_writer.
     rrd_writer = None if rrd_path is None else start_rerun_writer(rrd_path)
@@ -277,7 +304,19 @@ def process(
         ]
         run_settings = [Setting(k, getattr(v, "value", v), f"{flag} {v}") for k, v, flag in run_flags if v is not None]
         cfg = run_config(config, filter_settings, run_settings)
-        check_outputs({"OUTPUT": output, "--rrd": rrd_path}, {"INPUT": input, "--config": config})
+        from pipelines.run.direct_input import ingested_path, needs_ingest, prepare
+
+        log_format = needs_ingest(input)  # a log or bag rather than an MCAP from gslam ingest
+        outputs = {"OUTPUT": output, "--rrd": rrd_path}
+        if log_format is not None:
+            outputs["the ingested input"] = ingested_path(output)
+        check_outputs(outputs, {"INPUT": input, "--config": config})
+        if log_format is not None:
+            with reporting("ingest", "messages") as (report, _):
+                direct = prepare(input, output, report, log_format)
+            done = "using the earlier ingest" if direct.reused else "ingested it into"
+            typer.echo(f"INPUT {input} is a {log_format} log: {done} {direct.mcap} (eval, plot and export read it)")
+            input = direct.mcap
         with reporting("G-SLAM", "scans") as (report, _):
             summary = run_process(input, output, rrd_path, cfg, report, command=invocation(ctx), rrd_writer=rrd_writer)
         typer.echo(summary.describe())

@@ -1,0 +1,97 @@
+"""The first hour (issue 24, item 4): what a new user types works or says plainly what to do."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from pipelines.cli.app import app
+
+
+def gslam(*args) -> object:
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+def _carmen_log(path: Path, scans: int = 30) -> Path:
+    """A small CARMEN log: a robot driving along a corridor 2 m wide (180 beams of 1 deg)."""
+    import math
+
+    lines = []
+    for i in range(scans):
+        x, t = 0.1 * i, 100.0 + 0.2 * i
+        ranges = []
+        for b in range(180):
+            a = math.radians(-90 + b)
+            s = math.sin(a)
+            ranges.append(min(1.0 / abs(s), 30.0) if abs(s) > 1e-3 else 30.0)
+        r = " ".join(f"{v:.3f}" for v in ranges)
+        lines.append(f"FLASER 180 {r} {x:.3f} 0 0 {x:.3f} 0 0 {t:.3f} host {t:.3f}")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_process_takes_a_log_directly_ingesting_it_beside_the_output(tmp_path):
+    log = _carmen_log(tmp_path / "corridor.clf")
+    out = tmp_path / "r.mcap"
+    first = gslam("process", log, "-o", out, "--no-rrd", "-N", "2")
+    assert first.exit_code == 0, first.output
+    ingested = tmp_path / "r.input.mcap"
+    assert f"ingested it into {ingested}" in first.output and out.exists() and ingested.exists()
+    evaluated = gslam("eval", out)  # finds the run's input, as after an explicit ingest
+    assert evaluated.exit_code == 0 and "steps" in evaluated.output, evaluated.output
+    again = gslam("process", log, out, "--no-rrd", "-N", "2")  # the positional output still works
+    assert again.exit_code == 0 and "using the earlier ingest" in again.output, again.output
+
+
+def test_process_never_ingests_over_a_file_that_is_not_an_earlier_ingest(tmp_path):
+    log = _carmen_log(tmp_path / "corridor.clf")
+    precious = tmp_path / "r.input.mcap"
+    assert gslam("process", log, "-o", tmp_path / "other.mcap", "--no-rrd", "-N", "2").exit_code == 0
+    (tmp_path / "other.mcap").rename(precious)  # a result, at the name the ingest would take
+    before = precious.read_bytes()
+    refused = gslam("process", log, "-o", tmp_path / "r.mcap", "--no-rrd")
+    assert refused.exit_code == 2 and "is not an input MCAP from gslam ingest" in refused.output
+    assert precious.read_bytes() == before
+
+
+@pytest.mark.parametrize("content", [b"hello\n", b"\x89MCAP0\r\n" + bytes(40)])
+def test_process_says_in_plain_words_what_an_unknown_input_is_not(tmp_path, content):
+    odd = tmp_path / "thing.dat"
+    odd.write_bytes(content)
+    result = gslam("process", odd, "-o", tmp_path / "r.mcap", "--no-rrd")
+    assert result.exit_code == 2
+    line = result.output.strip()
+    assert "\n" not in line and ("not an MCAP from `gslam ingest`" in line or "gslam did not write" in line), line
+    assert "Magic" not in line and not (tmp_path / "r.mcap").exists()
+
+
+def test_process_output_as_option_or_argument_but_one(tmp_path):
+    log = _carmen_log(tmp_path / "corridor.clf", 5)
+    both = gslam("process", log, tmp_path / "a.mcap", "-o", tmp_path / "b.mcap")
+    assert both.exit_code == 2 and "two outputs" in both.output
+    none = gslam("process", log)
+    assert none.exit_code == 2 and "no output" in none.output
+
+
+def test_short_help_and_shell_completion():
+    for args in (["-h"], ["process", "-h"], ["ingest", "-h"]):
+        result = gslam(*args)
+        assert result.exit_code == 0 and "Usage:" in result.output, (args, result.output)
+    assert "--install-completion" in gslam("--help").output
+
+
+def test_info_shows_the_laser_mount_in_full(tmp_path):
+    from bagtools import bag_from_log
+
+    from ingest import ingest, read_log
+
+    log = read_log(_carmen_log(tmp_path / "corridor.clf", 10))
+    bag = bag_from_log(log, tmp_path / "robot.bag", "ros1", 10, "topic", (0.25, -0.125, 0.5))
+    ingest(bag, tmp_path / "robot.mcap")
+    shown = gslam("info", tmp_path / "robot.mcap")
+    assert shown.exit_code == 0, shown.output
+    mount = next(line for line in shown.output.splitlines() if line.strip().startswith("mount = "))
+    for part in ('"base_frame": "base_link"', '"x_m": 0.25', '"y_m": -0.125', '"yaw_rad": 0.5', '"upside_down": false'):
+        assert part in mount, (part, mount)
