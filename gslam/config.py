@@ -106,7 +106,9 @@ class FilterConfig:
     p of the k nearest points within prior_radius_m; "idw": inverse distance weighting of those;
     "constant": always p0."""
     prior_neighbours: int = 4
+    """k, the nearest points that "nearest_mean" and "idw" interpolate."""
     prior_radius_m: float = 0.5
+    """Radius [m] within which "nearest_mean" and "idw" look for those points."""
     prior_p0: float = 0.5
     """Prior where no point lies within the radius: a probability for "binary", else x mean p."""
 
@@ -184,6 +186,7 @@ class FilterConfig:
     """A match counts when its score exceeds this fraction of the returns used; otherwise the
     particle keeps its motion-model sample (GMapping minimumScore 0)."""
     proposal_sigma_xy_m: float = 0.0
+    """Gaussian position noise [m, sd] added to a matched pose (0: none, see proposal_sigma_phi_rad)."""
     proposal_sigma_phi_rad: float = 0.0
     """Gaussian noise added to a matched pose (sampling around the match). 0: the particle takes the
     matched pose, as GMapping's implementation does; the particles differ by their motion samples."""
@@ -210,13 +213,18 @@ class FilterConfig:
     control_noise: ControlNoise = "per_interval"
     """"per_sample": fresh noise at every odometry sample; "per_interval": one draw per scan interval."""
     speed_sigma_mps: float = 0.10
+    """Ackermann logs: speed noise [m/s, sd], the constant part."""
     speed_sigma_rel: float = 0.05
+    """Ackermann logs: speed noise, the part proportional to the speed (sd per m/s)."""
     steering_sigma_rad: float = math.radians(1.0)
+    """Ackermann logs: steering angle noise [rad, sd]."""
     odom_sigma: tuple[float, float, float, float] = (0.1, 0.2, 0.1, 0.2)
     """Odometry motion noise (srr, srt, str, stt), in the robot frame (`motion.apply_odometry`): sd of
     translation per metre and per radian, sd of rotation per metre and per radian (GMapping's defaults)."""
     initial_sigma_xy_m: float = 0.0
+    """Spread [m, sd] of the particles' initial positions (0: all start at the origin or the GPS fit)."""
     initial_sigma_phi_rad: float = 0.0
+    """Spread [rad, sd] of the particles' initial headings."""
 
     def __post_init__(self) -> None:
         self.validate()

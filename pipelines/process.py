@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 from collections.abc import Callable
@@ -16,6 +17,7 @@ from pipelines.outputs.rerun_result import RerunResultWriter
 from pipelines.outputs.writer import OccupancyMap, ResultWriter, RunEnd, RunStart
 from pipelines.outputs.writer_process import WriterProcess, usage
 from pipelines.run import interrupts
+from pipelines.run.compile_time import COMPILING_NOTE, watching_compiles
 from pipelines.run.input_log import InputLog
 from pipelines.run.recorded_input import fingerprint
 from pipelines.run.runner import RunConfig, SlamRunner
@@ -88,11 +90,14 @@ def process(
     progress: Callable[[int, int, float], None] | None = None,
     command: str | None = None,
     rrd_writer: WriterProcess | None = None,
+    notice: Callable[[str], None] | None = None,
 ) -> ProcessSummary:
     """Run the filter over `input_path` into the result MCAP `output_path` and the Rerun recording
-    `rrd_path` (None: none). Ctrl-C or an error mid-run still finishes the outputs with the steps done so
-    far (the error is re-raised after). `rrd_writer`: the recording's writer process, started beforehand
-    by `writer_process.start_rerun_writer` (aborted here if the run cannot start)."""
+        `rrd_path` (None: none). Ctrl-C or an error mid-run still finishes the outputs with the steps done so
+        far (the error is re-raised after). `rrd_writer`: the recording's writer process, started beforehand
+        by `writer_process.start_rerun_writer` (aborted here if the run cannot start). `notice(text)` tells the
+    user why the run waits (the kernels' first compile, the occupancy grid); compile time is left out of
+    the recorded step times and recorded as `compile_s`."""
     # The result MCAP first: the writers finish in reverse order, so that its record holds the figures
     # the others add to it.
     writers: list[ResultWriter] = [McapResultWriter(output_path, cfg.map_snapshot_every)]
@@ -137,23 +142,35 @@ def process(
     t_start = time.perf_counter()
     first_t = last_t = None
     t_prev = t_start
+
+    def compiling() -> None:
+        if notice is not None:
+            notice(COMPILING_NOTE)
+
+    compile_watch = None
     try:
-        for st in runner.steps():
-            interrupts.check()  # a signal whose exception was swallowed on its way (interrupts.check)
-            for w in writers:
-                w.step(st, runner.output_filter)
-            now = time.perf_counter()
-            step_ms.append((now - t_prev) * 1e3)
-            t_prev = now
-            filter_ms.append(st.step_ms)
-            scan_indices.append(st.event.index)
-            if st.result.updated:
-                update_ms.append(st.step_ms)
-            first_t = st.event.t_s if first_t is None else first_t
-            last_t = st.event.t_s
-            if progress is not None:
-                progress(st.event.index + 1, total, st.step_ms)
-        interrupts.hold()  # from here a signal waits for the outputs (a signal before it is caught below)
+        with watching_compiles(compiling) as compile_watch:
+            compiled_ms = 0.0  # numba compile time so far, taken out of the step it fell in
+            for st in runner.steps():
+                interrupts.check()  # a signal whose exception was swallowed on its way (interrupts.check)
+                spent_ms = compile_watch.total_s * 1e3 - compiled_ms
+                if spent_ms > 0:
+                    compiled_ms += spent_ms
+                    st = dataclasses.replace(st, step_ms=max(0.0, st.step_ms - spent_ms))
+                for w in writers:
+                    w.step(st, runner.output_filter)
+                now = time.perf_counter()
+                step_ms.append(max(0.0, (now - t_prev) * 1e3 - max(spent_ms, 0.0)))
+                t_prev = now
+                filter_ms.append(st.step_ms)
+                scan_indices.append(st.event.index)
+                if st.result.updated:
+                    update_ms.append(st.step_ms)
+                first_t = st.event.t_s if first_t is None else first_t
+                last_t = st.event.t_s
+                if progress is not None:
+                    progress(st.event.index + 1, total, st.step_ms)
+            interrupts.hold()  # from here a signal waits for the outputs (a signal before it is caught below)
     except (KeyboardInterrupt, Exception) as e:  # SIGINT, SIGTERM (interrupts.Stopped) or an error
         interrupts.hold()
         interrupts.acknowledge()
@@ -202,11 +219,14 @@ def process(
                 "real_time_factor": summary.real_time_factor,
                 "final_map_points": summary.final_map_points,
                 "peak_rss_mb": peak_rss_mb(),
+                "compile_s": 0.0 if compile_watch is None else round(compile_watch.total_s, 3),
                 "particles": cfg.filter.particles,
                 "points_per_observation": cfg.filter.points_per_observation,
             }
             occupancy = None
             if cfg.occupancy and not interrupted and scan_indices:
+                if notice is not None:
+                    notice("building the occupancy grid (every scan ray-cast at the final poses)")
                 occupancy = _occupancy(runner, log, scan_indices, cfg)
             end = RunEnd(flt, result_meta, occupancy)
             for w in reversed(writers):

@@ -95,3 +95,43 @@ def test_info_shows_the_laser_mount_in_full(tmp_path):
     mount = next(line for line in shown.output.splitlines() if line.strip().startswith("mount = "))
     for part in ('"base_frame": "base_link"', '"x_m": 0.25', '"y_m": -0.125', '"yaw_rad": 0.5', '"upside_down": false'):
         assert part in mount, (part, mount)
+
+
+def test_config_dump_lists_every_option_and_reads_back_as_the_defaults(tmp_path):
+    from dataclasses import fields
+
+    from gslam.config import FilterConfig
+    from pipelines.run.options import run_config
+    from pipelines.run.runner import RunConfig
+
+    out = tmp_path / "all.toml"
+    result = gslam("config", "--dump", "-o", out)
+    assert result.exit_code == 0, result.output
+    text = out.read_text()
+    assert run_config(out, [], []) == RunConfig()  # every value written is the default, and it parses
+    names = [f.name for f in fields(RunConfig) if f.name != "filter"] + [f.name for f in fields(FilterConfig)]
+    for name in names:  # each option is there, set or (default None) commented, under one line of help
+        line = next(ln for ln in text.splitlines() if ln.startswith((f"{name} = ", f"# {name} = ")))
+        before = text.splitlines()[text.splitlines().index(line) - 1]
+        assert before.startswith("# ") and len(before) > 10, (name, before)
+    changed = text.replace("particles = 30", "particles = 12")
+    out.write_text(changed)
+    assert run_config(out, [], []).filter.particles == 12
+    assert gslam("config", "--dump").output == text
+
+
+def test_the_first_compile_is_announced_and_its_time_counted_apart():
+    import numba
+
+    from pipelines.run.compile_time import watching_compiles
+
+    said = []
+
+    @numba.njit(cache=False)
+    def fresh(x):  # never compiled before: this test's own kernel
+        return x * 3 + 1
+
+    with watching_compiles(lambda: said.append("compiling")) as watch:
+        assert fresh(2) == 7
+        assert fresh(5) == 16  # already compiled: no second event
+    assert said == ["compiling"] and watch.compiles == 1 and watch.total_s > 0

@@ -317,8 +317,10 @@ def process(
             done = "using the earlier ingest" if direct.reused else "ingested it into"
             typer.echo(f"INPUT {input} is a {log_format} log: {done} {direct.mcap} (eval, plot and export read it)")
             input = direct.mcap
-        with reporting("G-SLAM", "scans") as (report, _):
-            summary = run_process(input, output, rrd_path, cfg, report, command=invocation(ctx), rrd_writer=rrd_writer)
+        with reporting("G-SLAM", "scans") as (report, say):
+            summary = run_process(
+                input, output, rrd_path, cfg, report, command=invocation(ctx), rrd_writer=rrd_writer, notice=say
+            )
         typer.echo(summary.describe())
         typer.echo(f"wrote {summary.output}")
         if summary.rrd is not None:
@@ -330,6 +332,29 @@ def process(
             written = " and ".join(str(p) for p in (summary.output, summary.rrd) if p is not None)
             e.add_note(f"wrote {written}: every scan was processed before the signal")
         raise
+
+
+@app.command("config")
+@guarded
+def config_cmd(
+    dump: Annotated[
+        bool, typer.Option("--dump", help="Print every option with its default and one line of help, as TOML.")
+    ] = False,
+    output: Annotated[Path | None, typer.Option("-o", "--output", help="Write the TOML here instead.")] = None,
+) -> None:
+    """The options of `gslam process`: `--dump` gives them all, as a TOML file that `--config` reads back."""
+    from mcaplog.tempfiles import write_atomic
+    from pipelines.run.config_template import config_toml
+
+    if not dump:
+        fail("give --dump (every option of gslam process with its default, as TOML for --config)")
+    text = config_toml()
+    if output is None:
+        typer.echo(text, nl=False)
+        return
+    check_outputs({"-o": output}, {})
+    write_atomic(output, text)
+    typer.echo(f"wrote {output}  (use it with: gslam process IN OUT --config {output})")
 
 
 @app.command("eval")

@@ -98,6 +98,7 @@ def run_demo(
         cfg,
         progress,
         command=f"gslam demo --out {out} --seed {seed} --particles {particles} --points {points}",
+        notice=lambda text: say(f"      {text}"),
     )
     say(
         f"      {summary.steps} steps, {summary.updates} updates, {summary.ms_per_update_mean:.1f} ms per update "
