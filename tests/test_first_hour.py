@@ -135,3 +135,32 @@ def test_the_first_compile_is_announced_and_its_time_counted_apart():
         assert fresh(2) == 7
         assert fresh(5) == 16  # already compiled: no second event
     assert said == ["compiling"] and watch.compiles == 1 and watch.total_s > 0
+
+
+def test_export_occupancy_reuses_the_grid_the_result_holds(tmp_path):
+    log = _carmen_log(tmp_path / "corridor.clf", 30)
+    out = tmp_path / "r.mcap"
+    assert gslam("process", log, "-o", out, "--no-rrd", "-N", "2", "--occupancy").exit_code == 0
+    rebuilt = gslam("export", out, "--occupancy", tmp_path / "built.yaml", "--resolution", "0.05")
+    assert rebuilt.exit_code == 0, rebuilt.output
+    (tmp_path / "r.input.mcap").unlink()  # the input gone: the grid in the result is all export needs
+    stored = gslam("export", out, "--occupancy", tmp_path / "stored.yaml")
+    assert stored.exit_code == 0, stored.output
+    assert (tmp_path / "stored.pgm").read_bytes() == (tmp_path / "built.pgm").read_bytes()
+    other = gslam("export", out, "--occupancy", tmp_path / "fine.yaml", "--resolution", "0.025")
+    assert other.exit_code == 2 and "r.input.mcap" in other.output  # another size needs the scans again
+
+
+def test_plot_axes_name_the_frame_and_long_steps_do_not_flatten_the_rest(tmp_path):
+    import numpy as np
+
+    from pipelines.evaluation.plot import result_figure, step_axis_top
+
+    log = _carmen_log(tmp_path / "corridor.clf", 30)
+    out = tmp_path / "r.mcap"
+    assert gslam("process", log, "-o", out, "--no-rrd", "-N", "2").exit_code == 0
+    fig = result_figure(out)
+    ax = fig.axes[0]
+    assert ax.get_xlabel().startswith("x [m]") and ax.get_ylabel() == "y [m]"  # no GPS: not east / north
+    steps = np.r_[900.0, np.full(199, 10.0)]  # one long first step
+    assert step_axis_top(steps) == 13.0 and step_axis_top(np.full(100, 10.0)) is None

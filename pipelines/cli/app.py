@@ -426,7 +426,15 @@ def export(
     input: Annotated[
         Path | None, typer.Option("--input", help="The input MCAP (default: the path in the result).")
     ] = None,
-    resolution: Annotated[float, typer.Option("--resolution", help="Occupancy cell size [m].")] = 0.05,
+    resolution: Annotated[
+        float | None,
+        typer.Option(
+            "--resolution",
+            help="Occupancy cell size [m]. The result's own grid (process --occupancy) is used when it has "
+            "this size; another size is built from the input's scans.",
+            show_default="the result's grid, else 0.05",
+        ),
+    ] = None,
 ) -> None:
     """Export a result for other tools: trajectory as TUM (evo reads it), map as CSV, occupancy grid as a
     map_server map (PGM + YAML, for ROS navigation)."""
@@ -434,8 +442,8 @@ def export(
 
     if tum is None and map_csv is None and occupancy is None:
         fail("nothing to export: give --tum, --map and/or --occupancy")
-    if not resolution > 0:
-        fail(f"--resolution must be positive, got {resolution}")
+    if resolution is not None and not 0 < resolution <= 10:
+        fail(f"--resolution must be in (0, 10] m, got {resolution}")
     from pipelines.evaluation.evaluate import recorded_input
 
     pgm = occupancy.with_suffix(".pgm") if occupancy is not None else None

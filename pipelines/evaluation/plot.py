@@ -40,6 +40,16 @@ def plot_result(result: Path, out: Path, reference: Path | None = None) -> Path:
     return out
 
 
+def step_axis_top(step_ms: np.ndarray) -> float | None:
+    """The top of the step-time axis when a few steps are far longer than the rest (1.3 x the 99th
+    percentile), else None (the whole range is shown)."""
+    step_ms = np.asarray(step_ms, dtype=float)
+    if len(step_ms) < 20:
+        return None
+    top = 1.3 * float(np.percentile(step_ms, 99))
+    return top if top > 0 and step_ms.max() > 2 * top else None
+
+
 def result_figure(result: Path, reference: Path | None = None):
     """The figure of `plot_result` (a matplotlib Figure; the caller closes it)."""
     import matplotlib
@@ -70,8 +80,12 @@ def result_figure(result: Path, reference: Path | None = None):
     if poles is not None:
         ax.scatter(poles[:, 0], poles[:, 1], marker="x", c="k", s=40, label="surveyed poles")
     ax.set_aspect("equal")
-    ax.set_xlabel("east [m]")
-    ax.set_ylabel("north [m]")
+    if res.metadata.get("initialisation", {}).get("from_gps"):  # the map frame is the GPS's: east, north
+        ax.set_xlabel("east [m]")
+        ax.set_ylabel("north [m]")
+    else:  # a local frame (the odometry's, or the first pose's): no compass directions
+        ax.set_xlabel("x [m] (map frame)")
+        ax.set_ylabel("y [m]")
     cfg = res.metadata["config"]["filter"]
     ax.set_title(f"{res.metadata['input'].get('dataset', '')}: N {cfg['particles']}, M {cfg['points_per_observation']}")
     _legend_below(ax, ncols=4)
@@ -87,8 +101,22 @@ def result_figure(result: Path, reference: Path | None = None):
         _legend_below(ax2, ncols=2)
         ax2.grid(alpha=0.3)
     else:
-        ax2.plot(res.t_s - res.t_s[0], res.step_ms)
+        ax2.plot(res.t_s - res.t_s[0], res.step_ms, lw=0.8)
         ax2.set_xlabel("time [s]")
         ax2.set_ylabel("step time [ms]")
         ax2.set_title("filter time per step (no GPS to compare with)")
+        top = step_axis_top(res.step_ms)
+        if top is not None:  # a few long steps would flatten the rest: they are cut and counted
+            ax2.set_ylim(0, top)
+            above = res.step_ms > top
+            ax2.text(
+                0.99,
+                0.98,
+                f"{int(above.sum())} steps above, longest {res.step_ms.max():.0f} ms",
+                transform=ax2.transAxes,
+                ha="right",
+                va="top",
+                fontsize=9,
+            )
+        ax2.grid(alpha=0.3)
     return fig

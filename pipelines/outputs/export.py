@@ -42,8 +42,10 @@ def export_result(
     map_csv: Path | None = None,
     occupancy_yaml: Path | None = None,
     input_path: Path | None = None,
-    resolution_m: float = 0.05,
+    resolution_m: float | None = None,
 ) -> list[Path]:
+    """Write what is asked; the occupancy grid is the result's own when it holds one at `resolution_m`
+    (None: whatever it holds), else built from the input's scans (`navigation_map.grid_from_result`)."""
     res = read_result(result)
     written = []
     if tum is not None:

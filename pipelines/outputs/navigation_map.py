@@ -76,12 +76,33 @@ def occupancy_probabilities(p: np.ndarray, map_update: str) -> np.ndarray:
     return p / max(float(p.max()), 1e-300)
 
 
-def grid_from_result(
-    result: Path, input_path: Path | None = None, resolution_m: float = DEFAULT_RESOLUTION_M
-) -> OccupancyGrid:
-    """The grid of a result MCAP, re-reading the scans from its input (default: the path in its metadata)."""
+def stored_grid(result: Path) -> OccupancyGrid | None:
+    """The grid a result holds on /map/occupancy (`gslam process --occupancy`), or None."""
+    last = None
+    for m in McapInput(result).messages([ch.MAP_OCCUPANCY]):
+        last = m.value
+    if last is None:
+        return None
+    width = int(last.column_count)
+    cells = np.frombuffer(last.data, dtype=np.int8)
+    if width < 1 or len(cells) % width or not last.cell_size.x > 0:
+        raise InputError(f"{result}: {ch.MAP_OCCUPANCY} is malformed ({len(cells)} cells in rows of {width})")
+    spec = GridSpec(
+        (float(last.pose.position.x), float(last.pose.position.y)), float(last.cell_size.x), width, len(cells) // width
+    )
+    return OccupancyGrid(spec, cells.reshape(spec.height, width).copy())
+
+
+def grid_from_result(result: Path, input_path: Path | None = None, resolution_m: float | None = None) -> OccupancyGrid:
+    """The grid of a result MCAP: the one it holds (`process --occupancy`) when `resolution_m` is None or
+    that grid's own, else built again from the input's scans (`input_path`, default the path in the
+    result's metadata) at `resolution_m` (default `DEFAULT_RESOLUTION_M`)."""
     from pipelines.evaluation.evaluate import read_result
 
+    stored = stored_grid(result)
+    if stored is not None and (resolution_m is None or abs(stored.spec.resolution_m - resolution_m) < 1e-9):
+        return stored
+    resolution_m = DEFAULT_RESOLUTION_M if resolution_m is None else resolution_m
     res = read_result(result)
     meta = res.metadata
     if input_path is None:
