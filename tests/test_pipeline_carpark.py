@@ -216,3 +216,23 @@ def test_grid_end_to_end(carpark_mcap, tmp_path, method):
     assert abs(grid.column_count**2 - cells) / cells < 0.05
     occ = np.frombuffer(grid.data, dtype=np.float32)
     assert len(occ) == grid.column_count**2 and ((occ >= 0) & (occ <= 1)).all() and (occ > 0.5).sum() > 20
+
+
+def test_export_reference_lets_evo_agree_with_eval(carpark_result, tmp_path):
+    """`export --tum` and `--reference` (GPS at the scan stamps): evo's APE, translation, no alignment, pairs
+    every pose and gives eval's `gps_mean_error_at_scans_m`; the paper's figure (at the GPS fixes) is near."""
+    from evo.core import metrics, sync
+    from evo.tools import file_interface
+
+    tum, ref = tmp_path / "traj.txt", tmp_path / "gps.txt"
+    res = CliRunner().invoke(app, ["export", str(carpark_result), "--tum", str(tum), "--reference", str(ref)])
+    assert res.exit_code == 0, res.output
+    est = file_interface.read_tum_trajectory_file(str(tum))
+    gt = file_interface.read_tum_trajectory_file(str(ref))
+    gt, est = sync.associate_trajectories(gt, est, max_diff=1e-4)
+    assert est.num_poses > 0.9 * 586
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((gt, est))
+    m = evaluate_result(carpark_result)
+    assert ape.get_statistic(metrics.StatisticsType.mean) == pytest.approx(m["gps_mean_error_at_scans_m"], abs=1e-5)
+    assert m["gps_mean_error_at_scans_m"] == pytest.approx(m["gps_mean_error_m"], rel=0.25)

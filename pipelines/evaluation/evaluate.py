@@ -12,7 +12,13 @@ import numpy as np
 from mcaplog import channels as ch
 from mcaplog.mcapio import McapInput, Message, read_error
 from pipelines.errors import InputError
-from pipelines.evaluation.metrics import gps_mean_error, gps_rmse_aligned, pole_map_error, relations_error
+from pipelines.evaluation.metrics import (
+    gps_mean_error,
+    gps_mean_error_at_scans,
+    gps_rmse_aligned,
+    pole_map_error,
+    relations_error,
+)
 from pipelines.run.input_log import converted
 from pipelines.run.recorded_input import recorded_input as checked_input
 
@@ -20,6 +26,7 @@ METRIC_KEYS = (
     "gps_mean_error_m",
     "gps_mean_error_online_m",
     "gps_rmse_aligned_m",
+    "gps_mean_error_at_scans_m",
     "pole_map_error_m",
     "poles_within_1m",
     "relations_trans_m",
@@ -185,6 +192,7 @@ def evaluate_result(result: Path, reference: Path | None = None) -> dict[str, An
         out["gps_mean_error_m"] = gps_mean_error(res.t_s, res.trajectory, g)
         out["gps_mean_error_online_m"] = gps_mean_error(res.t_s, res.online, g)
         out["gps_rmse_aligned_m"] = gps_rmse_aligned(res.t_s, res.trajectory, g)
+        out["gps_mean_error_at_scans_m"] = gps_mean_error_at_scans(res.t_s, res.trajectory, g)
     from_gps = meta.get("initialisation", {}).get("from_gps", gps is not None)
     if poles is not None and len(res.map_p) and not from_gps:
         notes.append(

@@ -26,6 +26,16 @@ def gps_mean_error(t_s: np.ndarray, poses: np.ndarray, gps: np.ndarray) -> float
     return float(np.mean(np.hypot(*(pos - gps[inside, 1:3]).T)))
 
 
+def gps_mean_error_at_scans(t_s: np.ndarray, poses: np.ndarray, gps: np.ndarray) -> float:
+    """The same distance sampled the other way round: GPS interpolated at each step's time (within the
+    GPS's span), the mean over steps. This is what evo's APE (translation, no alignment) gives for
+    `gslam export --tum` against `gslam export --reference`."""
+    inside, ref = interpolate_positions(gps[:, 0], gps[:, 1:3], t_s)
+    if not inside.any():
+        return float("nan")
+    return float(np.mean(np.hypot(*(poses[inside, :2] - ref).T)))
+
+
 def align_se2(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray]:
     """Least-squares rotation and translation taking src (K,2) onto dst (K,2) (Umeyama, no scale)."""
     cs, cd = src.mean(0), dst.mean(0)

@@ -31,6 +31,54 @@ def tum_text(stamp_s: np.ndarray, poses: np.ndarray) -> str:
     return "\n".join(lines) + "\n"
 
 
+def tum_stamps(stamp_s: np.ndarray) -> np.ndarray:
+    """Strictly increasing stamps for TUM readers (logs whose stamps go backwards keep file order)."""
+    stamps = np.asarray(stamp_s, dtype=float).copy()
+    for i in range(1, len(stamps)):  # over steps, once
+        if stamps[i] <= stamps[i - 1]:
+            stamps[i] = stamps[i - 1] + 1e-6
+    return stamps
+
+
+def reference_tum(res, result: Path, input_path: Path | None = None) -> str:
+    """The input's reference trajectory as TUM lines at the result's scan stamps (the stamps of `--tum`),
+    so that evo pairs every pose with its reference: the simulator's true pose where the input has one,
+    else GPS (position only: the orientation is written as identity). Interpolated linearly at each
+    step's log time; steps outside the reference's span are left out."""
+    from mcaplog import channels as ch
+    from mcaplog.mcapio import McapInput
+    from pipelines.errors import InputError
+    from pipelines.evaluation.evaluate import reference_truth
+    from pipelines.evaluation.metrics import interpolate_positions
+    from pipelines.run.recorded_input import recorded_input
+
+    path = Path(input_path) if input_path is not None else recorded_input(result, res.metadata, "--input")
+    truth = []
+    for m in McapInput(path).messages([ch.TRAJECTORY_TRUTH]):
+        p = m.value.pose
+        truth.append([m.t_s, p.position.x, p.position.y, 2 * np.arctan2(p.orientation.z, p.orientation.w)])
+    topic = ch.TRAJECTORY_TRUTH
+    ref = np.asarray(truth, dtype=float).reshape(-1, 4)
+    if len(ref) < 2:  # GPS, read as `gslam eval` reads it
+        gps, _, _ = reference_truth(McapInput(path))
+        topic, ref = ch.GPS, np.zeros((0, 4)) if gps is None else np.column_stack([gps, np.zeros(len(gps))])
+    if len(ref) < 2:
+        raise InputError(
+            f"{path}: no GPS or true trajectory to export (this log's reference, if any, is relations: "
+            "`gslam eval` scores them)"
+        )
+    inside, xy = interpolate_positions(ref[:, 0], ref[:, 1:3], res.t_s)
+    poses = np.zeros((int(inside.sum()), 3))
+    poses[:, :2] = xy
+    if topic == ch.TRAJECTORY_TRUTH:
+        poses[:, 2] = np.interp(res.t_s[inside], ref[:, 0], np.unwrap(ref[:, 3]))
+    text = tum_text(tum_stamps(res.stamp_s)[inside], poses)
+    what = "true pose" if topic == ch.TRAJECTORY_TRUTH else "GPS (position only; orientation identity)"
+    return text.replace(
+        text.splitlines()[0], f"# timestamp tx ty tz qx qy qz qw (reference: {what}, at the scan stamps)", 1
+    )
+
+
 def map_csv_text(xy: np.ndarray, p: np.ndarray) -> str:
     lines = ["x_m,y_m,probability"] + [f"{x:.4f},{y:.4f},{q:.6g}" for (x, y), q in zip(xy, p, strict=True)]
     return "\n".join(lines) + "\n"
@@ -43,18 +91,16 @@ def export_result(
     occupancy_yaml: Path | None = None,
     input_path: Path | None = None,
     resolution_m: float | None = None,
+    reference: Path | None = None,
 ) -> list[Path]:
     """Write what is asked; the occupancy grid is the result's own when it holds one at `resolution_m`
     (None: whatever it holds), else built from the input's scans (`navigation_map.grid_from_result`)."""
     res = read_result(result)
     written = []
     if tum is not None:
-        # Strictly increasing stamps for TUM readers: logs whose stamps go backwards keep file order.
-        stamps = res.stamp_s.copy()
-        for i in range(1, len(stamps)):  # over steps, once
-            if stamps[i] <= stamps[i - 1]:
-                stamps[i] = stamps[i - 1] + 1e-6
-        written.append(write_atomic(tum, tum_text(stamps, res.trajectory)))
+        written.append(write_atomic(tum, tum_text(tum_stamps(res.stamp_s), res.trajectory)))
+    if reference is not None:
+        written.append(write_atomic(reference, reference_tum(res, result, input_path)))
     if map_csv is not None:
         written.append(write_atomic(map_csv, map_csv_text(res.map_xy, res.map_p)))
     if occupancy_yaml is not None:
