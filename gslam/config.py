@@ -42,6 +42,11 @@ class FilterConfig:
     self-return range (1.0 m on the Sydney logs, whose laser sees the car at 0.84-0.92 m on beams 0-7
     in every Car Park scan; 0 elsewhere)."""
 
+    usable_range_m: float | None = None
+    """Returns farther than this are not observations (no new points, left out of the weight and the scan
+    matcher) and their beams clear free space only up to it, as GMapping's maxUrange treats them: for a
+    laser whose far readings are too noisy or too sparse to map. None: the laser's own maximum range."""
+
     # Sensor noise (R) and the point likelihood q (eq. 6; open point 2).
     range_sigma_m: float = 0.02
     """Range noise of the laser (sd of the draw of new points, R). 0.10 m smears every surface along the
@@ -279,6 +284,7 @@ _LIMITS: dict[str, tuple[float, float, bool]] = {
     "particles": (1, 4096, True),
     "points_per_observation": (1, 1000, True),
     "seed": (0, 2**32 - 1, True),
+    "usable_range_m": (0, math.inf, False),
     "range_sigma_m": (0, math.inf, False),
     "hit_sigma_m": (0, math.inf, False),
     "hit_ratio": (0, math.inf, False),

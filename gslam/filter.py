@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 import numpy as np
@@ -110,6 +110,10 @@ class GSlamFilter:
         cfg = self.cfg
         if cfg.min_range_m is not None and scan.min_range_m != cfg.min_range_m:
             scan = Scan(scan.t_s, scan.ranges_m, scan.geometry, cfg.min_range_m)
+        if cfg.usable_range_m is not None and cfg.usable_range_m < scan.geometry.max_range_m:
+            # Beyond it nothing is observed and free space ends there (GMapping's maxUrange).
+            usable = replace(scan.geometry, max_range_m=cfg.usable_range_m)
+            scan = Scan(scan.t_s, scan.ranges_m, usable, scan.min_range_m)
         # 1. Draw s_t^i from the motion model.
         if predict is not None:
             self.poses = predict(self.poses, self.rng)

@@ -89,3 +89,28 @@ def test_trajectory_beats_dead_reckoning(run):
         # measured 0.017 at seed 3: this small symmetric world is sensitive to the seed).
         assert err < 0.15, err
     assert err < 0.5
+
+
+@pytest.mark.parametrize("usable_range_m", [None, 4.0])
+def test_returns_beyond_the_usable_range_are_not_mapped(usable_range_m):
+    """A robot standing between a wall 2 m to its right and one 6 m to its left: with usable_range_m 4 only
+    the near wall is mapped (GMapping's maxUrange); by default both are."""
+    geom = ScanGeometry(181, -math.pi / 2, math.pi / 180, 30.0)
+    bearings = geom.bearings_rad
+    right, left = bearings < -0.2, bearings > 0.2
+    ranges = np.full(181, np.inf)
+    ranges[right] = 2.0 / np.abs(np.sin(bearings[right]))  # the wall y = -2
+    ranges[left] = 6.0 / np.abs(np.sin(bearings[left]))  # the wall y = +6
+    ranges[ranges > 25.0] = np.inf
+    cfg = FilterConfig(particles=2, seed=1, update_schedule="every_scan", usable_range_m=usable_range_m)
+    flt = GSlamFilter(cfg, np.zeros(3))
+    for k in range(5):
+        flt.step(Scan(0.1 * k, ranges, geom))
+    xy, p = flt.map_points(flt.best_particle())
+    strong = xy[p > 0.5]
+    near, far = np.abs(strong[:, 1] + 2.0) < 0.3, np.abs(strong[:, 1] - 6.0) < 0.3
+    assert near.sum() > 30
+    if usable_range_m is None:
+        assert far.sum() > 30
+    else:
+        assert far.sum() == 0 and np.hypot(*xy.T).max() < usable_range_m + 0.5
