@@ -304,7 +304,7 @@ def process(
         ]
         run_settings = [Setting(k, getattr(v, "value", v), f"{flag} {v}") for k, v, flag in run_flags if v is not None]
         cfg = run_config(config, filter_settings, run_settings)
-        from pipelines.run.direct_input import ingested_path, needs_ingest, prepare
+        from pipelines.cli.direct_input import ingested_path, needs_ingest, prepare
 
         log_format = needs_ingest(input)  # a log or bag rather than an MCAP from gslam ingest
         outputs = {"OUTPUT": output, "--rrd": rrd_path}
