@@ -164,3 +164,19 @@ def test_plot_axes_name_the_frame_and_long_steps_do_not_flatten_the_rest(tmp_pat
     assert ax.get_xlabel().startswith("x [m]") and ax.get_ylabel() == "y [m]"  # no GPS: not east / north
     steps = np.r_[900.0, np.full(199, 10.0)]  # one long first step
     assert step_axis_top(steps) == 13.0 and step_axis_top(np.full(100, 10.0)) is None
+
+
+def test_the_recording_streams_the_robot_the_path_so_far_the_statistics_and_the_grid(tmp_path):
+    import subprocess
+    import sys
+
+    log = _carmen_log(tmp_path / "corridor.clf", 450)
+    out = tmp_path / "r.mcap"
+    assert gslam("process", log, "-o", out, "-N", "2", "--occupancy").exit_code == 0
+    rerun = str(Path(sys.executable).with_name("rerun"))
+    printed = subprocess.run([rerun, "rrd", "print", str(out.with_suffix(".rrd"))], capture_output=True, text=True)
+    assert printed.returncode == 0, printed.stderr
+    text = printed.stdout
+    for path in ("/world/robot", "/world/path", "/world/occupancy", "/world/scan", "/world/particles"):
+        assert path in text, path
+    assert text.count("/stats/step_ms") >= 2  # sent with each batch of steps, not once at the end

@@ -324,7 +324,9 @@ def process(
         typer.echo(summary.describe())
         typer.echo(f"wrote {summary.output}")
         if summary.rrd is not None:
-            typer.echo(f"wrote {summary.rrd}  (open it with: rerun {summary.rrd})")
+            from pipelines.outputs.rerun_screenshot import open_command
+
+            typer.echo(f"wrote {summary.rrd}  (open it with: {open_command(summary.rrd)})")
     except BaseException as e:
         if rrd_writer is not None:
             rrd_writer.abort()  # nothing to do once the run has finished or aborted it

@@ -108,11 +108,11 @@ def result_figure(result: Path, reference: Path | None = None):
         top = step_axis_top(res.step_ms)
         if top is not None:  # a few long steps would flatten the rest: they are cut and counted
             ax2.set_ylim(0, top)
-            above = res.step_ms > top
+            n = int((res.step_ms > top).sum())
             ax2.text(
                 0.99,
                 0.98,
-                f"{int(above.sum())} steps above, longest {res.step_ms.max():.0f} ms",
+                f"{n} step{'s' if n > 1 else ''} above, longest {res.step_ms.max():.0f} ms",
                 transform=ax2.transAxes,
                 ha="right",
                 va="top",

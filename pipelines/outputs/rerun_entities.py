@@ -7,7 +7,9 @@ TIME_TIMELINE = "time"
 """Duration timeline: seconds since the log's start."""
 
 WORLD = "world"
-"""The map view's origin: everything below is in the map frame."""
+"""Everything below is in the map frame (x east or ahead, y north or left). The map view's origin is the
+root, and `world` carries a static mirror of y (`Transform3D(scale=(1, -1, 1))`): Rerun's 2-D views have y
+down, so without it every map would be drawn upside down against the plots."""
 MAP = "world/map"
 """The best particle's map points, coloured by probability (snapshots, and the final map)."""
 SCAN = "world/scan"
@@ -20,6 +22,14 @@ LANDMARKS = "world/landmarks"
 """Surveyed poles or simulated landmarks (static), where the log has them."""
 LANDMARK_ELLIPSES = "world/landmark_ellipses"
 """FastSLAM: the 3-sigma ellipses of the best particle's landmarks (final)."""
+ROBOT = "world/robot"
+"""The best particle's pose at each step: an arrow 1 m long from the base along its heading (one row per step)."""
+PATH = "world/path"
+"""The best particle's pose at each step as a segment from the one before; the map view shows this
+entity from the start of the timeline to the cursor: the path so far."""
+OCCUPANCY = "world/occupancy"
+"""`gslam process --occupancy`: the final trinary grid as an image under the map (light grey occupied,
+dark free, unknown transparent), placed by its origin and cell size."""
 TRAJECTORY = "world/trajectory"
 """The best particle's final trajectory."""
 ONLINE = "world/online"

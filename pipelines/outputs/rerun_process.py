@@ -41,9 +41,19 @@ def probability_colors(p: np.ndarray) -> np.ndarray:
 def blueprint():
     import rerun.blueprint as rrb
 
+    so_far = rrb.VisibleTimeRanges(
+        [
+            rrb.VisibleTimeRange(
+                timeline, start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.cursor_relative()
+            )
+            for timeline in (entity.SCAN_TIMELINE, entity.TIME_TIMELINE)
+        ]
+    )
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial2DView(name="map", origin=entity.WORLD),
+            rrb.Spatial2DView(
+                name="map (north / y up)", origin="/", contents=f"/{entity.WORLD}/**", overrides={entity.PATH: so_far}
+            ),
             rrb.Vertical(
                 rrb.TimeSeriesView(name="effective sample size", origin=entity.STATS_EFFECTIVE_SAMPLE_SIZE),
                 rrb.TimeSeriesView(name="map points", origin=entity.STATS_MAP_POINTS),
@@ -51,7 +61,7 @@ def blueprint():
             ),
             column_shares=[3, 1],
         ),
-        collapse_panels=True,
+        collapse_panels=False,  # the blueprint, selection and time panels open, as a user needs them
     )
 
 
@@ -65,9 +75,14 @@ class Recorder:
         self.path = Path(path)
         self.rec = rr.RecordingStream(app_id)
         self.rec.save(str(self.path), default_blueprint=blueprint())
-        # Colours and sizes of the per-step points, once for the whole recording.
-        self.rec.log(entity.SCAN, rr.Points2D.from_fields(colors=[[255, 60, 200]], radii=0.06), static=True)
-        self.rec.log(entity.PARTICLES, rr.Points2D.from_fields(colors=[[255, 140, 0]], radii=0.12), static=True)
+        self.rec.log(entity.WORLD, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)  # y up: entity.WORLD
+        # Colours and sizes of the per-step points, once for the whole recording (radii in screen points
+        # stay visible at any zoom).
+        ui = rr.components.Radius.ui_points
+        self.rec.log(entity.SCAN, rr.Points2D.from_fields(colors=[[255, 60, 200]], radii=ui(2.0)), static=True)
+        self.rec.log(entity.PARTICLES, rr.Points2D.from_fields(colors=[[255, 140, 0]], radii=ui(3.5)), static=True)
+        self.rec.log(entity.ROBOT, rr.Arrows2D.from_fields(colors=[[255, 255, 255]], radii=ui(2.5)), static=True)
+        self.rec.log(entity.PATH, rr.LineStrips2D.from_fields(colors=[[255, 215, 60]], radii=ui(2.0)), static=True)
         if gps is not None and len(gps):
             self.rec.log(entity.GPS, rr.LineStrips2D([gps[:, 1:3]], colors=[[40, 200, 40]], radii=0.08), static=True)
         if landmarks is not None and len(landmarks):
@@ -86,8 +101,17 @@ class Recorder:
         self.rec.set_time(entity.SCAN_TIMELINE, sequence=scan)
         self.rec.set_time(entity.TIME_TIMELINE, duration=time_s)
 
-    def rows(self, scans: np.ndarray, times_s: np.ndarray, columns: dict[str, tuple[np.ndarray, np.ndarray]]) -> None:
-        """One row per step on each path: `columns[path]` = (all the steps' points, points per step)."""
+    def rows(
+        self,
+        scans: np.ndarray,
+        times_s: np.ndarray,
+        columns: dict[str, tuple[np.ndarray, np.ndarray]],
+        poses: np.ndarray | None = None,
+        stats: dict[str, np.ndarray] | None = None,
+    ) -> None:
+        """One row per step on each path: `columns[path]` = (all the steps' points, points per step); the
+        robot's arrow and path segment from `poses` (K, 4: x, y, heading, and the path's previous x, y in
+        columns 3-4 as a (K, 5) array); the statistics as they come, so the plots fill while the run goes."""
         rr = self.rr
         idx = [
             rr.TimeColumn(entity.SCAN_TIMELINE, sequence=scans),
@@ -95,6 +119,18 @@ class Recorder:
         ]
         for path, (points, counts) in columns.items():
             self.rec.send_columns(path, indexes=idx, columns=rr.Points2D.columns(positions=points).partition(counts))
+        if poses is not None and len(poses):
+            heading = np.column_stack([np.cos(poses[:, 2]), np.sin(poses[:, 2])])
+            self.rec.send_columns(
+                entity.ROBOT, indexes=idx, columns=rr.Arrows2D.columns(origins=poses[:, :2], vectors=heading)
+            )
+            segments = np.stack([poses[:, 3:5], poses[:, :2]], axis=1).reshape(-1, 2)
+            self.rec.send_columns(
+                entity.PATH, indexes=idx, columns=rr.LineStrips2D.columns(strips=list(segments.reshape(-1, 2, 2)))
+            )
+        for name, path in entity.STATS.items():
+            if stats is not None and name in stats:
+                self.rec.send_columns(path, indexes=idx, columns=rr.Scalars.columns(scalars=stats[name]))
 
     def map(self, scan: int, time_s: float, xy: np.ndarray, p: np.ndarray) -> None:
         self._set_time(scan, time_s)
@@ -103,15 +139,9 @@ class Recorder:
     def finish(self, final: dict[str, Any]) -> None:
         """The per-step statistics, the final map and trajectories; then close the file."""
         rr, rec = self.rr, self.rec
-        stats = final.get("stats")
-        if stats is not None and len(stats["scan"]):
-            idx = [
-                rr.TimeColumn(entity.SCAN_TIMELINE, sequence=stats["scan"]),
-                rr.TimeColumn(entity.TIME_TIMELINE, duration=stats["time"]),
-            ]
-            for name, path in entity.STATS.items():
-                rec.send_columns(path, indexes=idx, columns=rr.Scalars.columns(scalars=stats[name]))
-            self.map(int(stats["scan"][-1]), float(stats["time"][-1]), *final["map"])
+        last = final.get("last")
+        if last is not None:
+            self.map(int(last[0]), float(last[1]), *final["map"])
             if final.get("landmark_ellipses") is not None:
                 rec.log(
                     entity.LANDMARK_ELLIPSES,
@@ -119,8 +149,21 @@ class Recorder:
                 )
             if final.get("occupancy_image") is not None:
                 rec.log(entity.GRID_OCCUPANCY, rr.Image(final["occupancy_image"]))
-            rec.log(entity.TRAJECTORY, rr.LineStrips2D([final["trajectory"]], colors=[[230, 30, 30]], radii=0.1))
-            rec.log(entity.ONLINE, rr.LineStrips2D([final["online"]], colors=[[60, 120, 255]], radii=0.05))
+            nav = final.get("navigation_grid")
+            if nav is not None:  # (state rows along y, origin, cell size): pixel (ix, iy) on its cell
+                state, origin, cell = nav
+                rgba = np.zeros((*state.shape, 4), dtype=np.uint8)  # unknown: transparent
+                rgba[state == 0] = (55, 60, 70, 255)  # free: dark, under the map's points and the paths
+                rgba[state == 100] = (170, 170, 170, 255)  # occupied: light grey
+                rec.log(
+                    entity.OCCUPANCY,
+                    rr.Transform3D(translation=[float(origin[0]), float(origin[1]), 0.0], scale=[cell, cell, 1.0]),
+                    rr.Image(rgba, color_model="RGBA", draw_order=-10.0),
+                )
+            # The final path in white (the map's colours run blue to red), the online estimate in blue.
+            ui = rr.components.Radius.ui_points
+            rec.log(entity.TRAJECTORY, rr.LineStrips2D([final["trajectory"]], colors=[[255, 255, 255]], radii=ui(2.5)))
+            rec.log(entity.ONLINE, rr.LineStrips2D([final["online"]], colors=[[60, 120, 255]], radii=ui(1.5)))
         self.finish_file()
 
     def close(self) -> None:

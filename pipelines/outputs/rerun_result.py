@@ -29,6 +29,10 @@ def covariance_ellipses(mean: np.ndarray, cov: np.ndarray, sigmas: float = 3.0, 
     return out
 
 
+_STATS_KEYS = {"effective_sample_size": "ess", "map_points": "map", "step_ms": "ms"}
+"""The recording's statistics (`rerun_entities.STATS`) by the key this writer gathers them under."""
+
+
 class RerunResultWriter:
     """Writes a Rerun recording (.rrd) with a default blueprint, on the `scan` and `time` timelines.
 
@@ -53,6 +57,7 @@ class RerunResultWriter:
         self.online: list[np.ndarray] = []
         self.pending_scans: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # ranges, laser pose, bearings
         self.pending_particles: list[np.ndarray] = []
+        self.pending_poses: list[np.ndarray] = []  # x, y, heading, and the previous step's x, y
         self.finished = False
         self.writer = writer if writer is not None else start_rerun_writer(self.path)
 
@@ -77,6 +82,8 @@ class RerunResultWriter:
         bearings = self.bearings if g is None or g == self.geometry else g.bearings_rad
         self.pending_scans.append((st.event.ranges_m, st.laser_pose, bearings))  # end points computed at _flush
         self.pending_particles.append(r.poses[:, :2].copy())
+        previous = self.online[-1] if self.online else r.best_pose[:2]
+        self.pending_poses.append(np.r_[r.best_pose[:3], previous])
         self.online.append(r.best_pose[:2].copy())
         for key, value in (
             ("scan", st.event.index),
@@ -108,8 +115,9 @@ class RerunResultWriter:
             columns[path] = (np.concatenate(rows), np.array([len(a) for a in rows]))
         scans = np.asarray(self.stats["scan"][-n:])
         times = np.asarray(self.stats["time"][-n:], dtype=float)
-        self.writer.send(("rows", scans, times, columns))
-        self.pending_scans, self.pending_particles = [], []
+        stats = {name: np.asarray(self.stats[key][-n:], dtype=float) for name, key in _STATS_KEYS.items()}
+        self.writer.send(("rows", scans, times, columns, np.asarray(self.pending_poses), stats))
+        self.pending_scans, self.pending_particles, self.pending_poses = [], [], []
 
     def _scan_end_points(self) -> list[np.ndarray]:
         """The world-frame end points of the returns of each pending scan (each with its own beams),
@@ -134,14 +142,10 @@ class RerunResultWriter:
             best = flt.best_particle()
             xy, p = flt.map_points(best)
             _, traj = flt.best_trajectory()
+            occ = end.occupancy
             final = {
-                "stats": {
-                    "scan": np.asarray(self.stats["scan"]),
-                    "time": np.asarray(self.stats["time"], dtype=float),
-                    "effective_sample_size": np.asarray(self.stats["ess"], dtype=float),
-                    "map_points": np.asarray(self.stats["map"], dtype=float),
-                    "step_ms": np.asarray(self.stats["ms"], dtype=float),
-                },
+                "last": (int(self.stats["scan"][-1]), float(self.stats["time"][-1])),
+                "navigation_grid": None if occ is None else (occ.state, occ.origin_xy_m, occ.resolution_m),
                 "map": (np.asarray(xy), np.asarray(p)),
                 "landmark_ellipses": covariance_ellipses(*flt.landmarks(best)) if hasattr(flt, "landmarks") else None,
                 "occupancy_image": None,

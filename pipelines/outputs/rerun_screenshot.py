@@ -1,0 +1,112 @@
+"""A recording as a user sees it: served with the rerun-sdk's own web viewer, opened in headless Chromium,
+and photographed (`python -m pipelines.outputs.rerun_screenshot RUN.rrd -o shot.png`).
+
+Needs Chromium (Debian's `chromium`; `GSLAM_CHROMIUM` names another binary) and the `playwright` Python
+package (its driver only: the browser is the system's). WebGL runs in Chromium's software rasteriser, so
+no GPU or screen is needed. `available()` says what is missing, for tests to skip with that reason.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+LOAD_WAIT_S = 30.0
+"""Seconds given to the viewer to load its WebAssembly and the recording (about 15 s on 2 cores)."""
+
+
+def open_command(rrd: Path) -> str:
+    """How to open a recording here: the native viewer where there is a screen, else the web viewer
+    (`rerun --web-viewer` serves it; open the address it prints in a browser, e.g. through an SSH tunnel)."""
+    if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") or sys.platform in ("darwin", "win32"):
+        return f"rerun {rrd}"
+    return f"rerun --web-viewer {rrd}   (no screen here: it serves the viewer at http://localhost:9090)"
+
+
+def chromium() -> str | None:
+    return os.environ.get("GSLAM_CHROMIUM") or shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+def available() -> str | None:
+    """None when a screenshot can be taken here, else why not."""
+    if chromium() is None:
+        return "no Chromium here (apt-get install chromium, or set GSLAM_CHROMIUM)"
+    try:
+        import playwright.sync_api  # noqa: F401
+    except ImportError:
+        return "the playwright package is not installed (pip install playwright)"
+    return None
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def screenshot(rrd: Path, out: Path, size: tuple[int, int] = (1600, 900), wait_s: float = LOAD_WAIT_S) -> Path:
+    """Serve `rrd` with `rerun --web-viewer` on free ports, open it in headless Chromium, wait `wait_s`,
+    and write the page as a PNG at `out`."""
+    from playwright.sync_api import sync_playwright
+
+    why = available()
+    if why is not None:
+        raise RuntimeError(why)
+    web, grpc = _free_port(), _free_port()
+    rerun = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
+    server = subprocess.Popen(
+        [rerun, "--web-viewer", "--web-viewer-port", str(web), "--port", str(grpc), str(rrd)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:  # the web server is up
+            with socket.socket() as s:
+                if s.connect_ex(("127.0.0.1", web)) == 0:
+                    break
+            time.sleep(0.2)
+        url = f"http://127.0.0.1:{web}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc}%2Fproxy"
+        args = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=chromium(), args=args)
+            try:
+                page = browser.new_page(viewport={"width": size[0], "height": size[1]})
+                page.goto(url)
+                time.sleep(wait_s)
+                Path(out).parent.mkdir(parents=True, exist_ok=True)
+                page.screenshot(path=str(out))
+            finally:
+                browser.close()
+    finally:
+        server.terminate()
+        try:
+            server.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            server.kill()
+    return Path(out)
+
+
+def main() -> int:
+    import argparse
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("rrd", type=Path)
+    parser.add_argument("-o", "--output", type=Path, required=True)
+    parser.add_argument("--wait", type=float, default=LOAD_WAIT_S)
+    a = parser.parse_args()
+    why = available()
+    if why is not None:
+        print(f"error: {why}", file=sys.stderr)
+        return 2
+    print(f"wrote {screenshot(a.rrd, a.output, wait_s=a.wait)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
