@@ -102,7 +102,7 @@ def process(
     # the others add to it.
     writers: list[ResultWriter] = [McapResultWriter(output_path, cfg.map_snapshot_every)]
     if rrd_path is not None:
-        writers.append(RerunResultWriter(rrd_path, cfg.map_snapshot_every, writer=rrd_writer))
+        writers.append(RerunResultWriter(rrd_path, cfg.map_snapshot_every, writer=rrd_writer, live_url=cfg.live_url))
     elif rrd_writer is not None:
         rrd_writer.abort()  # started for a recording this run does not write
     try:

@@ -180,3 +180,44 @@ def test_the_recording_streams_the_robot_the_path_so_far_the_statistics_and_the_
     for path in ("/world/robot", "/world/path", "/world/occupancy", "/world/scan", "/world/particles"):
         assert path in text, path
     assert text.count("/stats/step_ms") >= 2  # sent with each batch of steps, not once at the end
+
+
+def test_live_streams_to_a_viewer_and_still_writes_the_recording(tmp_path):
+    import socket
+    import subprocess
+    import sys
+    import time
+
+    def free_port() -> int:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            return s.getsockname()[1]
+
+    grpc, web = free_port(), free_port()
+    rerun = str(Path(sys.executable).with_name("rerun"))
+    server = subprocess.Popen(
+        [rerun, "--serve-web", "--port", str(grpc), "--web-viewer-port", str(web)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        for _ in range(100):
+            with socket.socket() as s:
+                if s.connect_ex(("127.0.0.1", grpc)) == 0:
+                    break
+            time.sleep(0.1)
+        url = f"rerun+http://127.0.0.1:{grpc}/proxy"
+        log = _carmen_log(tmp_path / "corridor.clf", 40)
+        out = tmp_path / "r.mcap"
+        result = gslam("process", log, "-o", out, "-N", "2", "--live-url", url)
+        assert result.exit_code == 0, result.output
+        assert f"streaming live to the Rerun viewer at {url}" in result.output
+        verified = subprocess.run([rerun, "rrd", "verify", str(out.with_suffix(".rrd"))], capture_output=True)
+        assert verified.returncode == 0
+    finally:
+        server.terminate()
+        server.wait(timeout=10)
+    bad = gslam("process", log, "-o", tmp_path / "x.mcap", "--live-url", "http://elsewhere")
+    assert bad.exit_code == 2 and "live_url must be a Rerun gRPC address" in bad.output
+    both = gslam("process", log, "-o", tmp_path / "y.mcap", "--live-url", url, "--no-rrd")
+    assert both.exit_code == 2 and "cannot go with --no-rrd" in both.output

@@ -277,6 +277,20 @@ def process(
     occupancy: Annotated[
         bool, typer.Option("--occupancy", help="Also write the final occupancy grid on /map/occupancy.")
     ] = False,
+    live: Annotated[
+        bool,
+        typer.Option(
+            "--live",
+            help="Stream the recording to a Rerun viewer while the run goes (one is started if none listens; "
+            "the web viewer where there is no screen).",
+        ),
+    ] = False,
+    live_url: Annotated[
+        str | None,
+        typer.Option(
+            "--live-url", help="The viewer's gRPC address for --live.", show_default="rerun+http://127.0.0.1:9876/proxy"
+        ),
+    ] = None,
 ) -> None:
     """Run G-SLAM (or a baseline) over an input MCAP; write the result MCAP and a Rerun recording."""
     from pipelines.outputs.writer_process import start_rerun_writer
@@ -302,6 +316,10 @@ def process(
             ("threads", threads, "--threads"),
             ("occupancy", True if occupancy else None, "--occupancy"),
         ]
+        if live or live_url:
+            from pipelines.outputs.rerun_screenshot import DEFAULT_LIVE_URL
+
+            run_flags.append(("live_url", live_url or DEFAULT_LIVE_URL, "--live-url"))
         run_settings = [Setting(k, getattr(v, "value", v), f"{flag} {v}") for k, v, flag in run_flags if v is not None]
         cfg = run_config(config, filter_settings, run_settings)
         from pipelines.cli.direct_input import ingested_path, needs_ingest, prepare
@@ -311,6 +329,12 @@ def process(
         if log_format is not None:
             outputs["the ingested input"] = ingested_path(output)
         check_outputs(outputs, {"INPUT": input, "--config": config})
+        if cfg.live_url is not None:
+            if rrd_path is None:
+                fail("--live streams the Rerun recording: it cannot go with --no-rrd")
+            from pipelines.outputs.rerun_screenshot import live_viewer
+
+            typer.echo(live_viewer(cfg.live_url))
         if log_format is not None:
             with reporting("ingest", "messages") as (report, _):
                 direct = prepare(input, output, report, log_format)

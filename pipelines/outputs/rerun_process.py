@@ -5,7 +5,7 @@ building the blueprint and encoding the rows run on another core than the filter
 process does not hold rerun's memory. Plain data only: numpy arrays in pickled commands on stdin, one
 JSON line per reply on stdout. It imports numpy and rerun, nothing of the filter.
 
-Commands (`pipelines.outputs.writer_process`): ("open", path, app_id, gps, landmarks), then any number of
+Commands (`pipelines.outputs.writer_process`): ("open", path, app_id, gps, landmarks, live_url), then any number of
 ("rows", ...) and ("map", ...), then ("finish", final) or ("abort",). The file at `path` is the caller's
 temporary: the caller renames it once "finish" is answered. When stdin closes without "finish" or
 "abort" (the caller was killed) the rows received are flushed and the temporary is left, as the
@@ -52,7 +52,11 @@ def blueprint():
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial2DView(
-                name="map (north / y up)", origin="/", contents=f"/{entity.WORLD}/**", overrides={entity.PATH: so_far}
+                name="map (north / y up)",
+                origin="/",
+                contents=f"/{entity.WORLD}/**",
+                overrides={entity.PATH: so_far},
+                background=[18, 20, 26],  # dark: the white final path and the map's colours stand out
             ),
             rrb.Vertical(
                 rrb.TimeSeriesView(name="effective sample size", origin=entity.STATS_EFFECTIVE_SAMPLE_SIZE),
@@ -68,13 +72,24 @@ def blueprint():
 class Recorder:
     """Writes the recording (`world/*` on the `scan` and `time` timelines, `stats/*`, `grid/*`)."""
 
-    def __init__(self, path: str, app_id: str, gps: np.ndarray | None, landmarks: np.ndarray | None) -> None:
+    def __init__(
+        self,
+        path: str,
+        app_id: str,
+        gps: np.ndarray | None,
+        landmarks: np.ndarray | None,
+        live_url: str | None = None,
+    ) -> None:
+        """`live_url`: also stream to the Rerun viewer (or `rerun --serve-web`) listening there (`--live`)."""
         import rerun as rr
 
         self.rr = rr
         self.path = Path(path)
         self.rec = rr.RecordingStream(app_id)
-        self.rec.save(str(self.path), default_blueprint=blueprint())
+        if live_url:
+            self.rec.set_sinks(rr.FileSink(str(self.path)), rr.GrpcSink(live_url), default_blueprint=blueprint())
+        else:
+            self.rec.save(str(self.path), default_blueprint=blueprint())
         self.rec.log(entity.WORLD, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)  # y up: entity.WORLD
         # Colours and sizes of the per-step points, once for the whole recording (radii in screen points
         # stay visible at any zoom).

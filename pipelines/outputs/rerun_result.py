@@ -44,12 +44,22 @@ class RerunResultWriter:
     """Steps whose scans and particles are sent to the recording together, as columns (one `log` call
     per step cost more than the filter on long logs)."""
 
+    LIVE_FLUSH_EVERY = 10
+    """The same when the recording is also streamed to a viewer (`live_url`): the view follows the run."""
+
     def __init__(
-        self, path: Path, snapshot_every: int, app_id: str = "gslam", writer: WriterProcess | None = None
+        self,
+        path: Path,
+        snapshot_every: int,
+        app_id: str = "gslam",
+        writer: WriterProcess | None = None,
+        live_url: str | None = None,
     ) -> None:
         """Starts the writer process, or takes `writer`, the one started beforehand by
-        `writer_process.start_rerun_writer`."""
+        `writer_process.start_rerun_writer`. `live_url`: also stream to the viewer listening there."""
         self.path = Path(path)
+        self.live_url = live_url
+        self.flush_every = self.LIVE_FLUSH_EVERY if live_url else self.FLUSH_EVERY
         self.tmp: Path | None = None
         self.snapshot_every = snapshot_every
         self.app_id = app_id
@@ -73,7 +83,7 @@ class RerunResultWriter:
         self.geometry = geometry
         self.t0_s = t0_s
         self.bearings = geometry.bearings_rad
-        self.writer.open((str(self.tmp.resolve()), self.app_id, gps, landmarks))
+        self.writer.open((str(self.tmp.resolve()), self.app_id, gps, landmarks, self.live_url))
 
     # --- the steps ----------------------------------------------------------------------------
     def step(self, st: Step, flt: SlamFilter) -> None:
@@ -102,7 +112,7 @@ class RerunResultWriter:
             # pickled it, and the map update could not write that buffer again (gslam.mapupdate.windowed)
             xy, p = np.array(xy, dtype=np.float32), np.array(p, dtype=np.float32)
             self.writer.send(("map", st.event.index, st.event.t_s - self.t0_s, xy, p))
-        if len(self.pending_scans) >= self.FLUSH_EVERY:
+        if len(self.pending_scans) >= self.flush_every:
             self._flush()
 
     def _flush(self) -> None:

@@ -59,6 +59,9 @@ class RunConfig:
     """Also write the final trinary occupancy grid on /map/occupancy (pipelines.outputs.navigation_map)."""
     occupancy_resolution_m: float = 0.05
     """Cell size of that grid [m]."""
+    live_url: str | None = None
+    """Also stream the Rerun recording to the viewer listening at this gRPC address while the run goes
+    (`gslam process --live`; e.g. "rerun+http://127.0.0.1:9876/proxy"). None: the .rrd file only."""
 
     RUN_OPTIONS: ClassVar[tuple[str, ...]] = ()
     """The run options (every field but `filter`): what a TOML file may set besides [filter], and what a
@@ -81,6 +84,14 @@ class RunConfig:
             raise ValueError(f"filter must be a FilterConfig, got {type(self.filter).__name__}")
         check_fields(self, self.LIMITS, skip=("filter",))
         method(self.method)  # a registered method (pipelines.methods)
+        if self.live_url is not None and not (
+            str(self.live_url).startswith(("rerun://", "rerun+http://", "rerun+https://"))
+            and str(self.live_url).rstrip("/").endswith("/proxy")
+        ):
+            raise ValueError(
+                "live_url must be a Rerun gRPC address such as rerun+http://127.0.0.1:9876/proxy, "
+                f"got {self.live_url!r}"
+            )
         if self.vehicle is not None and self.vehicle not in VEHICLE_PRESETS:
             raise ValueError(f"vehicle must be one of {', '.join(VEHICLE_PRESETS)}, got {self.vehicle!r}")
 
