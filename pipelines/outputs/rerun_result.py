@@ -44,7 +44,7 @@ class RerunResultWriter:
     """Steps whose scans and particles are sent to the recording together, as columns (one `log` call
     per step cost more than the filter on long logs)."""
 
-    LIVE_FLUSH_EVERY = 10
+    LIVE_FLUSH_EVERY = 25
     """The same when the recording is also streamed to a viewer (`live_url`): the view follows the run."""
 
     def __init__(
