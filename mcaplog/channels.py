@@ -37,7 +37,13 @@ SLAM_LANDMARKS = "/slam/landmarks"  # FastSLAM: landmark means and covariances (
 SLAM_GRID = "/slam/grid"  # grid methods: occupancy grid (final, best particle)
 MAP_OCCUPANCY = "/map/occupancy"  # `gslam process --occupancy`: trinary navigation grid (final)
 
+TF = "/tf"  # foxglove.FrameTransforms at each step: map -> odom -> base_link -> laser
+SLAM_SCAN = "/slam/scan"  # the step's scan in the laser frame (placed by /tf)
+
 MAP_FRAME = "map"
+ODOM_FRAME = "odom"
+BASE_FRAME = "base_link"
+LASER_FRAME = "laser"
 
 ACKERMANN_SCHEMA: dict[str, Any] = {
     "title": "gslam.AckermannOdometry",
@@ -162,6 +168,21 @@ def laser_scan(
     msg.ranges.extend(ranges_m.tolist())
     if intensities is not None:
         msg.intensities.extend(intensities.tolist())
+    return msg
+
+
+def frame_transforms(t_s: float, links: list[tuple[str, str, float, float, float]]):
+    """A foxglove.FrameTransforms: each link (parent, child, x, y, yaw) is the child frame's pose in its
+    parent's, in the plane."""
+    from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
+
+    msg = FrameTransforms()
+    stamp = timestamp(t_s)
+    for parent, child, x, y, yaw in links:
+        tf = msg.transforms.add(parent_frame_id=parent, child_frame_id=child)
+        tf.timestamp.CopyFrom(stamp)
+        tf.translation.x, tf.translation.y, tf.translation.z = float(x), float(y), 0.0
+        tf.rotation.w, tf.rotation.z = math.cos(yaw / 2), math.sin(yaw / 2)
     return msg
 
 

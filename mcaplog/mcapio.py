@@ -49,6 +49,7 @@ class AtomicMcapWriter:
         self._writer.start(profile=profile, library="gslam")
         self._channels: dict[str, int] = {}
         self._json_schemas: dict[str, int] = {}
+        self._proto_schemas: dict[str, int] = {}
         self._sequence: dict[str, int] = {}
         self.closed = False
 
@@ -66,7 +67,10 @@ class AtomicMcapWriter:
 
     def _proto_channel(self, topic: str, message: Any) -> int:
         if topic not in self._channels:
-            schema_id = register_schema(self._writer, type(message))
+            name = message.DESCRIPTOR.full_name  # one schema per message type, shared by its channels
+            if name not in self._proto_schemas:
+                self._proto_schemas[name] = register_schema(self._writer, type(message))
+            schema_id = self._proto_schemas[name]
             self._channels[topic] = self._writer.register_channel(
                 topic=topic, message_encoding=MessageEncoding.Protobuf, schema_id=schema_id
             )

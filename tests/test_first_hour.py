@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -221,3 +222,47 @@ def test_live_streams_to_a_viewer_and_still_writes_the_recording(tmp_path):
     assert bad.exit_code == 2 and "live_url must be a Rerun gRPC address" in bad.output
     both = gslam("process", log, "-o", tmp_path / "y.mcap", "--live-url", url, "--no-rrd")
     assert both.exit_code == 2 and "cannot go with --no-rrd" in both.output
+
+
+def test_the_result_carries_the_transform_tree_for_foxglove(tmp_path):
+    """Read with the mcap library's own reader and decoder (not gslam's): each step's /tf resolves
+    map -> odom -> base_link -> laser, map -> base_link is the step's /slam/pose, base_link -> laser the
+    bag's mount; the scans are in the laser frame; no schema is written twice."""
+    import math
+
+    from bagtools import bag_from_log
+    from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory
+
+    from gslam.se2 import compose
+    from ingest import ingest, read_log
+
+    log = read_log(_carmen_log(tmp_path / "corridor.clf", 40))
+    bag = bag_from_log(log, tmp_path / "robot.bag", "ros1", 40, "topic", (0.25, -0.125, 0.5))
+    ingest(bag, tmp_path / "robot.mcap")
+    out = tmp_path / "r.mcap"
+    assert gslam("process", tmp_path / "robot.mcap", "-o", out, "--no-rrd", "-N", "2").exit_code == 0
+
+    def planar(tf) -> np.ndarray:
+        q = tf.rotation
+        return np.array([tf.translation.x, tf.translation.y, 2 * math.atan2(q.z, q.w)])
+
+    with open(out, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        schemas = [s.name for s in reader.get_summary().schemas.values()]
+        assert len(schemas) == len(set(schemas)), schemas
+        tfs, poses, scans = [], [], []
+        for _, channel, message, decoded in reader.iter_decoded_messages(topics=["/tf", "/slam/pose", "/slam/scan"]):
+            {"/tf": tfs, "/slam/pose": poses, "/slam/scan": scans}[channel.topic].append((message.log_time, decoded))
+    assert len(tfs) == len(poses) == len(scans) == 40
+    for (t_tf, tf), (t_pose, pose) in zip(tfs, poses, strict=True):
+        assert t_tf == t_pose
+        links = {(x.parent_frame_id, x.child_frame_id): planar(x) for x in tf.transforms}
+        assert set(links) == {("map", "odom"), ("odom", "base_link"), ("base_link", "laser")}
+        base = compose(links[("map", "odom")], links[("odom", "base_link")])
+        q = pose.pose.orientation
+        expected = np.array([pose.pose.position.x, pose.pose.position.y, 2 * math.atan2(q.z, q.w)])
+        np.testing.assert_allclose(base[:2], expected[:2], atol=1e-6)
+        assert math.cos(base[2] - expected[2]) == pytest.approx(1.0, abs=1e-9)
+        np.testing.assert_allclose(links[("base_link", "laser")], [0.25, -0.125, 0.5], atol=1e-9)
+    assert all(scan.frame_id == "laser" for _, scan in scans)

@@ -5,7 +5,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from gslam.filter import SlamFilter
+from gslam.se2 import compose, inverse
 from mcaplog import channels as ch
 from mcaplog.mcapio import AtomicMcapWriter, to_ns
 from pipelines.outputs.writer import RunEnd, RunStart
@@ -23,6 +26,9 @@ class McapResultWriter:
         self.steps_written = 0
 
     def start(self, run: RunStart) -> None:
+        self.geometry = run.log.geometry
+        mount = run.log.mount
+        self.mount = (0.0, 0.0, 0.0) if mount is None else (mount.x_m, mount.y_m, mount.yaw_rad)
         self.writer = AtomicMcapWriter(self.path)
         for name, data in run.metadata.items():
             self.writer.add_metadata(name, data)
@@ -33,6 +39,7 @@ class McapResultWriter:
         self.last_ns = ns
         w = self.writer
         w.write_proto(ch.SLAM_POSE, ch.pose_in_frame(st.event.stamp_s, *r.best_pose, ch.MAP_FRAME), ns)
+        self._frames(st, ns)
         self.steps_written += 1  # the trajectory in finish() covers exactly the poses written
         particles = ch.poses_in_frame_bytes(st.event.stamp_s, r.poses, ch.MAP_FRAME)
         w.write_proto_bytes(ch.SLAM_PARTICLES, ch.PosesInFrame, particles, ns)
@@ -94,6 +101,25 @@ class McapResultWriter:
             self.writer.write_proto(ch.SLAM_GRID, ch.occupancy_grid(t_last, prob, origin, cell), ns)
         self.writer.add_metadata("result", end.result)
         return self.writer.finish()
+
+    def _frames(self, st: Step, ns: int) -> None:
+        """The transform tree at the step (/tf) and the scan in the laser frame (/slam/scan): map -> odom is
+        the SLAM correction (the best base pose composed with the odometry's inverse), odom -> base_link
+        the input's odometry, base_link -> laser the mount. Logs of controls (no odometry pose) give
+        map -> base_link directly."""
+        best = np.asarray(st.result.best_pose[:3], dtype=float)
+        t = st.event.stamp_s
+        if st.odom_pose is not None:
+            odom = np.asarray(st.odom_pose[:3], dtype=float)
+            correction = compose(best, inverse(odom))
+            links = [(ch.MAP_FRAME, ch.ODOM_FRAME, *correction), (ch.ODOM_FRAME, ch.BASE_FRAME, *odom)]
+        else:
+            links = [(ch.MAP_FRAME, ch.BASE_FRAME, *best)]
+        links.append((ch.BASE_FRAME, ch.LASER_FRAME, *self.mount))
+        self.writer.write_proto(ch.TF, ch.frame_transforms(t, links), ns)
+        g = st.event.geometry or self.geometry
+        scan = ch.laser_scan(t, np.asarray(st.event.ranges_m), g.start_angle_rad, g.end_angle_rad, None, ch.LASER_FRAME)
+        self.writer.write_proto(ch.SLAM_SCAN, scan, ns)
 
     def abort(self) -> None:
         if self.writer is not None:

@@ -110,6 +110,8 @@ class Step:
     step_ms: float
     laser_pose: np.ndarray
     """The best particle's laser pose (where the scan was taken)."""
+    odom_pose: np.ndarray | None = None
+    """The base's odometry pose at the scan (odometry logs; None for logs of controls)."""
 
 
 class SlamRunner:
@@ -235,6 +237,7 @@ class SlamRunner:
                     result = dataclasses.replace(
                         result, poses=self.mount.base_of(result.poses), best_pose=self.mount.base_of(result.best_pose)
                     )
-                yield Step(ev, result, step_ms, laser_pose)
+                odom = None if self.vehicle is not None or odom_last is None else np.asarray(odom_last, dtype=float)
+                yield Step(ev, result, step_ms, laser_pose, odom)
                 if self.cfg.max_scans is not None and ev.index + 1 >= self.cfg.max_scans:
                     break
