@@ -1,7 +1,7 @@
 """Time spent compiling the filter's numba kernels, kept out of the recorded step times.
 
 The kernels are compiled on a machine's first run and loaded from numba's cache after (`cache=True`); a
-compile takes about 30 s on 2 cores, inside the first steps that call each kernel. `CompileWatch` listens
+compile takes 15 to 30 s on 2 cores, inside the first steps that call each kernel. `CompileWatch` listens
 to numba's own "numba:compile" events: it calls `on_first` as the first compile starts (so the user is
 told why the bar waits), sums the seconds of every outermost compile, and lets the run subtract them from
 the step they fell in, so a first run's timings are those of any other run. Loading from the cache
@@ -14,7 +14,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
-COMPILING_NOTE = "compiling the filter's kernels (first run only: about 30 s; later runs load them from a cache)"
+COMPILING_NOTE = "compiling the filter's kernels (first run only: 15 to 30 s; later runs load them from a cache)"
 
 
 class CompileWatch:
