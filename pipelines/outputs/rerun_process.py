@@ -86,6 +86,10 @@ class Recorder:
         self.rr = rr
         self.path = Path(path)
         self.rec = rr.RecordingStream(app_id)
+        # Only the log's own timelines (`scan`, `time`): the wall-clock `log_time` and the call counter
+        # `log_tick` that rerun adds by default mean nothing for a replayed log.
+        self.rec.set_log_time_enabled(False)
+        self.rec.set_log_tick_enabled(False)
         if live_url:
             self.rec.set_sinks(rr.FileSink(str(self.path)), rr.GrpcSink(live_url), default_blueprint=blueprint())
         else:
