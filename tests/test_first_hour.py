@@ -200,6 +200,7 @@ def test_live_streams_to_a_viewer_and_still_writes_the_recording(tmp_path):
         [rerun, "--serve-web", "--port", str(grpc), "--web-viewer-port", str(web)],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
+        start_new_session=True,
     )
     try:
         for _ in range(100):
@@ -216,8 +217,9 @@ def test_live_streams_to_a_viewer_and_still_writes_the_recording(tmp_path):
         verified = subprocess.run([rerun, "rrd", "verify", str(out.with_suffix(".rrd"))], capture_output=True)
         assert verified.returncode == 0
     finally:
-        server.terminate()
-        server.wait(timeout=10)
+        from pipelines.outputs.rerun_screenshot import stop_group
+
+        stop_group(server)  # the rerun wrapper and the viewer binary it runs
     bad = gslam("process", log, "-o", tmp_path / "x.mcap", "--live-url", "http://elsewhere")
     assert bad.exit_code == 2 and "live_url must be a Rerun gRPC address" in bad.output
     both = gslam("process", log, "-o", tmp_path / "y.mcap", "--live-url", url, "--no-rrd")

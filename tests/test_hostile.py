@@ -165,7 +165,15 @@ def test_a_signal_at_start_up_exits_130_without_a_traceback(carpark_mcap, tmp_pa
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err
     assert "Traceback" not in err and "Exception ignored" not in err, err
-    assert not list(tmp_path.glob(".*.tmp")) and not (tmp_path / "r.rrd").exists()
+    assert not list(tmp_path.glob(".*.tmp"))
+    out = tmp_path / "r.mcap"
+    if out.exists():  # the signal came once the run had begun: both outputs finished, marked interrupted
+        from pipelines.evaluation.mcap_info import mcap_info
+
+        assert mcap_info(out)["metadata"]["result"]["interrupted"] is True
+        assert (tmp_path / "r.rrd").stat().st_size > 0
+    else:  # before: nothing at either final path
+        assert not (tmp_path / "r.rrd").exists()
 
 
 def test_a_stalled_rerun_writer_is_killed_and_the_result_mcap_kept(carpark_mcap, tmp_path):

@@ -6,8 +6,24 @@ Ctrl-C at any moment, even while typer, numpy or numba load, ends with one line 
 
 from __future__ import annotations
 
+import signal
 import sys
-from typing import Any
+
+
+def _before_start(signum: int, frame) -> None:
+    """SIGINT / SIGTERM while the command line itself loads (before `run` installs the full handling)."""
+    try:
+        sys.stderr.write("interrupted before the command started\n")
+    except (OSError, ValueError):
+        pass
+    raise SystemExit(128 + signum)  # no traceback, even inside an import
+
+
+if sys.argv and sys.argv[0].rsplit("/", 1)[-1] in ("gslam", "-m", "__main__.py"):  # the command, not an import
+    for _s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(_s, _before_start)
+
+from typing import Any  # noqa: E402  (after the handlers: a signal while it loads is handled)
 
 
 def _interrupted(code: int) -> None:

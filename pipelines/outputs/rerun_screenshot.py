@@ -109,6 +109,7 @@ def screenshot(rrd: Path, out: Path, size: tuple[int, int] = (1600, 900), wait_s
         [rerun, "--web-viewer", "--web-viewer-port", str(web), "--port", str(grpc), str(rrd)],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
+        start_new_session=True,  # `rerun` is a Python wrapper around the viewer binary: end them together
     )
     try:
         deadline = time.monotonic() + 30
@@ -130,12 +131,25 @@ def screenshot(rrd: Path, out: Path, size: tuple[int, int] = (1600, 900), wait_s
             finally:
                 browser.close()
     finally:
-        server.terminate()
-        try:
-            server.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            server.kill()
+        stop_group(server)
     return Path(out)
+
+
+def stop_group(process: subprocess.Popen) -> None:
+    """End a process started with `start_new_session=True` and everything it started (SIGTERM, then
+    SIGKILL after 10 s)."""
+    import signal
+
+    for sig, wait_s in ((signal.SIGTERM, 10), (signal.SIGKILL, 5)):
+        try:
+            os.killpg(process.pid, sig)
+        except ProcessLookupError:
+            return
+        try:
+            process.wait(timeout=wait_s)
+            return
+        except subprocess.TimeoutExpired:
+            continue
 
 
 def main() -> int:

@@ -103,11 +103,24 @@ def _handler(signum: int, frame) -> None:
     raise Stopped(signum)
 
 
+def _unraisable(unraisable) -> None:
+    """Python prints an exception it cannot raise (one raised in a ctypes callback, e.g. while numba loads
+    a kernel, or in a finaliser) as "Exception ignored ..." with its traceback. A `Stopped` lost so is not
+    an error: the run's loop raises it again between steps (`check`); say nothing of it."""
+    if isinstance(unraisable.exc_value, Stopped):
+        return
+    _default_unraisable(unraisable)
+
+
+_default_unraisable = sys.unraisablehook
+
+
 def install() -> None:
     """Handle SIGINT and SIGTERM from now on (in the main thread only): the command line's first act."""
     if threading.current_thread() is threading.main_thread():
         for s in _SIGNALS:
             signal.signal(s, _handler)
+        sys.unraisablehook = _unraisable
 
 
 def check() -> None:
