@@ -11,9 +11,7 @@ order (they share the odometry frame), so the filter has the odometry exactly at
 
 from __future__ import annotations
 
-import gzip
 import math
-import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,7 +21,7 @@ import numpy as np
 
 from .base import OdomRecord, ReadOptions, Record, RelationsRecord, ScanRecord
 from .logdata import LogData, ScanGeometry
-from .textlog import IngestError, time_problem
+from .textlog import IngestError, MonotoneClock, text_lines, time_problem
 
 CARMEN_NO_RETURN_M = 81.9
 """Readings at or beyond this are no return (the SICK LMS reports 81.91 m or so when nothing is hit)."""
@@ -79,42 +77,11 @@ def carmen_geometry(beam_count: int, max_range_m: float = CARMEN_NO_RETURN_M) ->
 MAX_BEAMS = 100_000
 """The most beams a scan may have (what `gslam process` accepts)."""
 
-MAX_LINE_BYTES = 1 << 20
-"""The longest line read (1 MiB; a FLASER line of 1 081 beams is about 10 kB): a file without line breaks
-is refused, not read whole."""
-
 
 def _lines(path: Path) -> Iterator[tuple[int, str]]:
-    """(line number, text) of a CARMEN log, plain or gzip, read a line at a time (memory flat in the
-    log's length). Lines are split as `str.splitlines` splits them; bytes that are not UTF-8 are read as
-    Latin-1."""
-    try:
-        f = open(path, "rb")
-    except FileNotFoundError:
-        raise IngestError(f"{path}: file not found") from None
-    with f:
-        packed = f.read(2) == b"\x1f\x8b"
-        f.seek(0)
-        stream = gzip.GzipFile(fileobj=f, mode="rb") if packed else f
-        lineno = 0
-        while True:
-            try:
-                raw = stream.readline(MAX_LINE_BYTES + 1)
-            except (OSError, EOFError, zlib.error) as e:
-                raise IngestError(f"{path}: corrupt gzip data ({e})") from None
-            if not raw:
-                return
-            if len(raw) > MAX_LINE_BYTES:
-                raise IngestError(
-                    f"{path}:{lineno + 1}: a line longer than {MAX_LINE_BYTES >> 20} MiB: not a CARMEN log"
-                )
-            try:
-                text = raw.decode("utf-8")
-            except UnicodeDecodeError:
-                text = raw.decode("latin-1")
-            for line in text.splitlines():
-                lineno += 1
-                yield lineno, line
+    """(line number, text) of a CARMEN log, plain or gzip, a line at a time; bytes that are not UTF-8 are
+    read as Latin-1."""
+    return text_lines(path, "CARMEN log", gzip_ok=True, latin1_fallback=True)
 
 
 def relations_path_for(path: Path) -> Path:
@@ -299,13 +266,10 @@ class CarmenStream:
     def records(self) -> Iterator[tuple[int, Record]]:
         """(log time, record) in file order; log times at least 1 ns apart (`monotone_log_times_ns`)."""
         g = self.geometry
-        prev = None
+        clock = MonotoneClock()
 
         def log_time(t_s: float) -> int:
-            nonlocal prev
-            ns = int(round(t_s * 1e9))
-            prev = ns if prev is None or ns > prev else prev + 1
-            return prev
+            return clock(int(round(t_s * 1e9)))
 
         if self.relations is not None:
             yield int(round(self.first_t_s * 1e9)), RelationsRecord(self.relations)

@@ -21,7 +21,7 @@ from gslam.vehicle import vehicle_preset
 
 from .base import AckermannRecord, GpsRecord, LandmarksRecord, ReadOptions, Record, ScanRecord, TruthPoseRecord
 from .logdata import _PRIORITY, LogData, ScanGeometry
-from .textlog import IngestError, NumericCsv, check_times, parse_numeric_csv
+from .textlog import IngestError, MonotoneClock, NumericCsv, check_times, parse_numeric_csv
 
 SYDNEY_BEAMS = 361
 SYDNEY_GEOMETRY = ScanGeometry(
@@ -126,11 +126,9 @@ def _first_pass(path: Path, columns: int, skip_bad_lines: bool, row_check=None) 
 def _log_times(rows: Iterator[tuple[int, list[float]]], priority: int, make) -> Iterator[tuple[int, int, int, object]]:
     """(log time ns, priority, index, record) of one stream; log times keep file order, each at least
     1 ns after the one before (`monotone_log_times_ns`, computed as the rows come)."""
-    prev = None
+    clock = MonotoneClock()
     for i, (_, values) in enumerate(rows):
-        ns = int(round(values[0] * 1e9))
-        prev = ns if prev is None or ns > prev else prev + 1
-        yield prev, priority, i, make(values)
+        yield clock(int(round(values[0] * 1e9))), priority, i, make(values)
 
 
 class SydneyTextStream:
@@ -293,10 +291,9 @@ class SydneyTextStream:
             firsts.append(self.laser.first_t_s)
         if self.landmarks is not None:
             yield min(int(round(t * 1e9)) for t in firsts), LandmarksRecord(self.landmarks)
-        prev = None
+        clock = MonotoneClock()  # ties between streams keep the order above
         for ns, _, _, record in heapq.merge(*streams, key=lambda e: e[:3]):
-            prev = ns if prev is None or ns > prev else prev + 1  # ties between streams keep the order above
-            yield prev, record
+            yield clock(ns), record
         if self.truth is not None:
             # Written after the stream: MCAP indexes keep log-time order for readers.
             for ns, _, _, record in _log_times(self._rows(self.truth), 0, lambda v: TruthPoseRecord(*v)):

@@ -44,13 +44,20 @@ class Table:
 
 
 MAX_LINE_BYTES = 1 << 20
-"""The longest line a text log may have (1 MiB; a Sydney LASER.txt line of 361 ranges is about 3 kB): a
-file without line breaks is refused, not read whole."""
+"""The longest line a text log may have (1 MiB; a Sydney LASER.txt line of 361 ranges is about 3 kB, a
+CARMEN FLASER line of 1 081 beams about 10 kB): a file without line breaks is refused, not read whole."""
 
 
-def text_lines(path: Path) -> Iterator[tuple[int, str]]:
-    """(line number, text) of a UTF-8 text file read a line at a time, so memory stays flat in the file's
-    length. Lines are numbered as `str.splitlines` splits them (as `Path.read_text().splitlines()` does)."""
+def text_lines(
+    path: Path, kind: str = "text log", gzip_ok: bool = False, latin1_fallback: bool = False
+) -> Iterator[tuple[int, str]]:
+    """(line number, text) of a text log read a line at a time, so memory stays flat in its length. Lines
+    are numbered as `str.splitlines` splits them (as `Path.read_text().splitlines()` does). `gzip_ok`:
+    a gzip file is read through; `latin1_fallback`: a line that is not UTF-8 is read as Latin-1 (else it
+    is refused); `kind` names the format in the refusal of an overlong line."""
+    import gzip
+    import zlib
+
     try:
         f = open(path, "rb")
     except FileNotFoundError:
@@ -58,17 +65,25 @@ def text_lines(path: Path) -> Iterator[tuple[int, str]]:
     except IsADirectoryError:
         raise IngestError(f"{path}: a directory, not a text file") from None
     with f:
+        packed = gzip_ok and f.read(2) == b"\x1f\x8b"
+        f.seek(0)
+        stream = gzip.GzipFile(fileobj=f, mode="rb") if packed else f
         offset = lineno = 0
         while True:
-            raw = f.readline(MAX_LINE_BYTES + 1)
+            try:
+                raw = stream.readline(MAX_LINE_BYTES + 1)
+            except (OSError, EOFError, zlib.error) as e:
+                raise IngestError(f"{path}: corrupt gzip data ({e})") from None
             if not raw:
                 return
             if len(raw) > MAX_LINE_BYTES:
-                raise IngestError(f"{path}:{lineno + 1}: a line longer than {MAX_LINE_BYTES >> 20} MiB: not a text log")
+                raise IngestError(f"{path}:{lineno + 1}: a line longer than {MAX_LINE_BYTES >> 20} MiB: not a {kind}")
             try:
                 text = raw.decode("utf-8")
             except UnicodeDecodeError as e:
-                raise IngestError(f"{path}: not a text file ({e.reason} at byte {offset + e.start})") from None
+                if not latin1_fallback:
+                    raise IngestError(f"{path}: not a text file ({e.reason} at byte {offset + e.start})") from None
+                text = raw.decode("latin-1")
             offset += len(raw)
             for line in text.splitlines():
                 lineno += 1
@@ -161,6 +176,18 @@ def _is_float(s: str) -> bool:
     except ValueError:
         return False
     return True
+
+
+class MonotoneClock:
+    """`monotone_log_times_ns` one time at a time, for logs streamed: each log time at least 1 ns after
+    the one before (`clock(ns)` returns the time to write)."""
+
+    def __init__(self) -> None:
+        self.last_ns: int | None = None
+
+    def __call__(self, ns: int) -> int:
+        self.last_ns = ns if self.last_ns is None or ns > self.last_ns else self.last_ns + 1
+        return self.last_ns
 
 
 def monotone_log_times_ns(t_s: np.ndarray) -> tuple[np.ndarray, int]:

@@ -132,6 +132,7 @@ def process(
         _abort(writers)
         raise
     total = log.scan_count if cfg.max_scans is None else min(cfg.max_scans, log.scan_count)
+    written = " and ".join(str(p) for p in (output_path, rrd_path) if p is not None)  # for the notes
     step_ms: list[float] = []
     filter_ms: list[float] = []
     scan_indices: list[int] = []
@@ -238,7 +239,6 @@ def process(
             finished = True
     except KeyboardInterrupt as stop:
         if finished and error is None and not errors:  # the signal waited for the finish
-            written = " and ".join(str(p) for p in (output_path, rrd_path) if p is not None)
             stop.add_note(f"wrote {written}: every scan was processed before the signal")
         else:
             _abort(writers)
@@ -249,11 +249,9 @@ def process(
     if errors:
         raise errors[0]
     if after_last_scan is not None:
-        written = " and ".join(str(p) for p in (output_path, rrd_path) if p is not None)
         after_last_scan.add_note(f"wrote {written}: every scan was processed before the signal")
         raise after_last_scan
     if error is not None:
-        written = " and ".join(str(p) for p in (output_path, rrd_path) if p is not None)
         error.add_note(f"wrote {written} with the {summary.steps} steps done, marked interrupted")
         raise error
     return summary

@@ -92,11 +92,9 @@ def _ingest_metadata(mcap: Path) -> dict | None:
     return meta if "ingest" in meta and "result" not in meta else None
 
 
-def _earlier_ingest(mcap: Path, source: Path) -> bool:
-    """`mcap` is a gslam ingest of `source` newer than it (then it is used again)."""
-    meta = _ingest_metadata(mcap)
-    if meta is None:
-        return False
+def _ingest_of(meta: dict, mcap: Path, source: Path) -> bool:
+    """An ingest whose metadata is `meta`, at `mcap`, is of `source` and newer than it (then it is used
+    again)."""
     recorded = meta.get("dataset", {}).get("source")
     if recorded is None or Path(str(recorded)).resolve() != source.resolve():
         return False
@@ -114,9 +112,10 @@ def prepare(
         return DirectInput(source)
     mcap = ingested_path(output)
     if mcap.exists():
-        if _earlier_ingest(mcap, source):
+        meta = _ingest_metadata(mcap)
+        if meta is not None and _ingest_of(meta, mcap, source):
             return DirectInput(mcap, source, reused=True)
-        if _ingest_metadata(mcap) is None:  # only an earlier ingest is replaced, never another file
+        if meta is None:  # only an earlier ingest is replaced, never another file
             raise InputError(
                 f"INPUT {source} is a log: it would be ingested into {mcap}, which exists and is not an "
                 "input MCAP from gslam ingest; move that file, or run `gslam ingest` yourself"

@@ -10,9 +10,12 @@ import numpy as np
 from mcaplog.tempfiles import write_atomic
 from pipelines.evaluation.evaluate import read_result
 
+TRAJECTORY_HEADER = "gslam final best path: the base's if the laser is mounted off it"
 
-def tum_text(stamp_s: np.ndarray, poses: np.ndarray) -> str:
-    """TUM trajectory lines `t x y z qx qy qz qw` (evo's `evo_traj tum`, `evo_ape tum` read them)."""
+
+def tum_text(stamp_s: np.ndarray, poses: np.ndarray, what: str = TRAJECTORY_HEADER) -> str:
+    """TUM trajectory lines `t x y z qx qy qz qw` (evo's `evo_traj tum`, `evo_ape tum` read them), under a
+    comment saying `what` they are."""
     half = poses[:, 2] / 2
     rows = np.column_stack(
         [
@@ -26,7 +29,7 @@ def tum_text(stamp_s: np.ndarray, poses: np.ndarray) -> str:
             np.cos(half),
         ]
     )
-    lines = ["# timestamp tx ty tz qx qy qz qw (gslam final best path: the base's if the laser is mounted off it)"]
+    lines = [f"# timestamp tx ty tz qx qy qz qw ({what})"]
     lines += [" ".join(f"{v:.9f}" if i == 0 else f"{v:.6f}" for i, v in enumerate(r)) for r in rows]
     return "\n".join(lines) + "\n"
 
@@ -72,11 +75,8 @@ def reference_tum(res, result: Path, input_path: Path | None = None) -> str:
     poses[:, :2] = xy
     if topic == ch.TRAJECTORY_TRUTH:
         poses[:, 2] = np.interp(res.t_s[inside], ref[:, 0], np.unwrap(ref[:, 3]))
-    text = tum_text(tum_stamps(res.stamp_s)[inside], poses)
     what = "true pose" if topic == ch.TRAJECTORY_TRUTH else "GPS (position only; orientation identity)"
-    return text.replace(
-        text.splitlines()[0], f"# timestamp tx ty tz qx qy qz qw (reference: {what}, at the scan stamps)", 1
-    )
+    return tum_text(tum_stamps(res.stamp_s)[inside], poses, f"reference: {what}, at the scan stamps")
 
 
 def map_csv_text(xy: np.ndarray, p: np.ndarray) -> str:
