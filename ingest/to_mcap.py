@@ -28,12 +28,12 @@ def _none_if_nan(v: float) -> float | None:
     return None if math.isnan(v) else v
 
 
-def _write(writer: AtomicMcapWriter, ns: int, rec: Record) -> str:
-    """Write one record; returns its topic."""
+def _write(writer: AtomicMcapWriter, ns: int, rec: Record) -> tuple[str, ...]:
+    """Write one record; returns the topics written."""
     if isinstance(rec, ScanRecord):
         msg = ch.laser_scan(rec.t_s, rec.ranges_m, rec.start_angle_rad, rec.end_angle_rad, rec.intensities)
         writer.write_proto(ch.LASER, msg, ns)
-        return ch.LASER
+        return (ch.LASER,)
     if isinstance(rec, OdomRecord):
         obj = {
             "t_s": rec.t_s,
@@ -45,22 +45,24 @@ def _write(writer: AtomicMcapWriter, ns: int, rec: Record) -> str:
             "source": rec.source,
         }
         writer.write_json(ch.ODOM_POSE, "gslam.OdometryPose", ch.ODOM_POSE_SCHEMA, obj, ns)
-        return ch.ODOM_POSE
+        # The same pose for Foxglove and Rerun (the filter reads the JSON, which has the velocities too).
+        writer.write_proto(ch.ODOM, ch.pose_in_frame(rec.t_s, rec.x_m, rec.y_m, rec.theta_rad, ch.ODOM_FRAME), ns)
+        return ch.ODOM_POSE, ch.ODOM
     if isinstance(rec, AckermannRecord):
         obj = {"t_s": rec.t_s, "speed_mps": rec.speed_mps, "steering_rad": rec.steering_rad}
         writer.write_json(ch.ODOM_ACKERMANN, "gslam.AckermannOdometry", ch.ACKERMANN_SCHEMA, obj, ns)
-        return ch.ODOM_ACKERMANN
+        return (ch.ODOM_ACKERMANN,)
     if isinstance(rec, GpsRecord):
         writer.write_proto(ch.GPS, ch.pose_in_frame(rec.t_s, rec.x_m, rec.y_m, 0.0, "gps"), ns)
-        return ch.GPS
+        return (ch.GPS,)
     if isinstance(rec, TruthPoseRecord):
         msg = ch.pose_in_frame(rec.t_s, rec.x_m, rec.y_m, rec.theta_rad, "gps")
         writer.write_proto(ch.TRAJECTORY_TRUTH, msg, ns)
-        return ch.TRAJECTORY_TRUTH
+        return (ch.TRAJECTORY_TRUTH,)
     if isinstance(rec, LandmarksRecord):
         obj = {"x_m": rec.xy_m[:, 0].tolist(), "y_m": rec.xy_m[:, 1].tolist(), "kind": "pole"}
         writer.write_json(ch.LANDMARKS_TRUTH, "gslam.Landmarks", ch.LANDMARKS_SCHEMA, obj, ns)
-        return ch.LANDMARKS_TRUTH
+        return (ch.LANDMARKS_TRUTH,)
     if isinstance(rec, RelationsRecord):
         r = rec.rows
         obj = {
@@ -71,7 +73,7 @@ def _write(writer: AtomicMcapWriter, ns: int, rec: Record) -> str:
             "dyaw_rad": r[:, 4].tolist(),
         }
         writer.write_json(ch.RELATIONS_TRUTH, "gslam.Relations", ch.RELATIONS_SCHEMA, obj, ns)
-        return ch.RELATIONS_TRUTH
+        return (ch.RELATIONS_TRUTH,)
     raise TypeError(f"unknown record {type(rec).__name__}")
 
 
@@ -83,8 +85,8 @@ def write_log_mcap(log: LogStream, out: Path, progress: Callable[[int, int], Non
     try:
         n = 0
         for n, (ns, rec) in enumerate(log.records(), start=1):
-            topic = _write(writer, ns, rec)
-            counts[topic] = counts.get(topic, 0) + 1
+            for topic in _write(writer, ns, rec):
+                counts[topic] = counts.get(topic, 0) + 1
             if progress is not None and n % 2000 == 0:
                 progress(n, max(log.expected_records or 0, n))
         if progress is not None:

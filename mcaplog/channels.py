@@ -21,6 +21,7 @@ from google.protobuf.timestamp_pb2 import Timestamp
 LASER = "/laser/scan"
 ODOM_ACKERMANN = "/vehicle/odometry"  # Sydney logs: rear-left wheel speed and steering angle
 ODOM_POSE = "/odom/pose"  # CARMEN logs: integrated odometry pose (and velocities where known)
+ODOM = "/odom"  # the same odometry poses as foxglove.PoseInFrame (frame odom), for viewers
 GPS = "/gps/position"
 LANDMARKS_TRUTH = "/ground_truth/landmarks"  # surveyed poles (Car Park) or simulated obstacles
 RELATIONS_TRUTH = "/ground_truth/relations"  # Kuemmerle et al. relations (Freiburg logs)
@@ -30,6 +31,7 @@ TRAJECTORY_TRUTH = "/ground_truth/pose"  # true pose where a simulator knows it
 SLAM_POSE = "/slam/pose"
 SLAM_PARTICLES = "/slam/particles"
 SLAM_TRAJECTORY = "/slam/trajectory"
+SLAM_PATH = "/slam/path"  # foxglove.PosesInFrame at each map update: the best particle's path so far
 SLAM_MAP = "/slam/map"
 SLAM_MAP_FINAL = "/slam/map_final"
 SLAM_STATS = "/slam/stats"
@@ -120,10 +122,12 @@ STATS_SCHEMA: dict[str, Any] = {
         "t_s": {"type": "number"},
         "effective_sample_size": {"type": "number"},
         "resampled": {"type": "boolean"},
+        "updated": {"type": "boolean", "description": "the map and weights were updated at this scan"},
         "map_points": {"type": "integer", "description": "points in the best particle's map"},
         "map_points_total": {"type": "integer", "description": "points over all particles"},
         "step_ms": {"type": "number", "description": "filter step wall time [ms]"},
         "best_particle": {"type": "integer"},
+        "matched": {"type": "integer", "description": "particles whose scan match was kept"},
     },
 }
 

@@ -229,7 +229,10 @@ def test_live_streams_to_a_viewer_and_still_writes_the_recording(tmp_path):
 def test_the_result_carries_the_transform_tree_for_foxglove(tmp_path):
     """Read with the mcap library's own reader and decoder (not gslam's): each step's /tf resolves
     map -> odom -> base_link -> laser, map -> base_link is the step's /slam/pose, base_link -> laser the
-    bag's mount; the scans are in the laser frame; no schema is written twice."""
+    bag's mount; the scans are in the laser frame; no schema is written twice. /slam/path at each map
+    update is the path so far: it ends at that step's /slam/pose, and the last one is the final
+    /slam/trajectory at the updates."""
+    import json
     import math
 
     from bagtools import bag_from_log
@@ -253,10 +256,23 @@ def test_the_result_carries_the_transform_tree_for_foxglove(tmp_path):
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         schemas = [s.name for s in reader.get_summary().schemas.values()]
         assert len(schemas) == len(set(schemas)), schemas
-        tfs, poses, scans = [], [], []
-        for _, channel, message, decoded in reader.iter_decoded_messages(topics=["/tf", "/slam/pose", "/slam/scan"]):
-            {"/tf": tfs, "/slam/pose": poses, "/slam/scan": scans}[channel.topic].append((message.log_time, decoded))
+        tfs, poses, scans, paths, final = [], [], [], [], []
+        topics = {"/tf": tfs, "/slam/pose": poses, "/slam/scan": scans, "/slam/path": paths, "/slam/trajectory": final}
+        for _, channel, message, decoded in reader.iter_decoded_messages(topics=list(topics)):
+            topics[channel.topic].append((message.log_time, decoded))
+        stats = [json.loads(m.data) for _, _, m in reader.iter_messages(topics=["/slam/stats"])]
     assert len(tfs) == len(poses) == len(scans) == 40
+    updated = [i for i, s in enumerate(stats) if s["updated"]]
+    assert 3 < len(updated) < 40 and len(paths) == len(updated)
+
+    def xy(poses_msg) -> np.ndarray:
+        return np.array([[p.position.x, p.position.y] for p in poses_msg.poses])
+
+    for k, (i, (t_path, path)) in enumerate(zip(updated, paths, strict=True)):
+        assert t_path == poses[i][0] and len(path.poses) == k + 1
+        step_pose = poses[i][1].pose.position
+        np.testing.assert_allclose(xy(path)[-1], [step_pose.x, step_pose.y], atol=1e-9)
+    np.testing.assert_allclose(xy(paths[-1][1]), xy(final[0][1])[updated], atol=1e-9)
     for (t_tf, tf), (t_pose, pose) in zip(tfs, poses, strict=True):
         assert t_tf == t_pose
         links = {(x.parent_frame_id, x.child_frame_id): planar(x) for x in tf.transforms}
@@ -268,3 +284,35 @@ def test_the_result_carries_the_transform_tree_for_foxglove(tmp_path):
         assert math.cos(base[2] - expected[2]) == pytest.approx(1.0, abs=1e-9)
         np.testing.assert_allclose(links[("base_link", "laser")], [0.25, -0.125, 0.5], atol=1e-9)
     assert all(scan.frame_id == "laser" for _, scan in scans)
+
+
+def test_the_foxglove_layout_names_what_the_result_holds(tmp_path):
+    """docs/foxglove/gslam-layout.json: every panel of its tree is configured, and every topic and
+    plotted field it names is one a `gslam process --occupancy` result holds, with a Foxglove schema."""
+    import json
+
+    from mcap.reader import make_reader
+
+    layout = json.loads((Path(__file__).parents[1] / "docs" / "foxglove" / "gslam-layout.json").read_text())
+
+    def leaves(node) -> list[str]:
+        return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(node["second"])
+
+    assert sorted(leaves(layout["layout"])) == sorted(layout["configById"])
+    scene = layout["configById"]["3D!gslam-map"]
+    assert scene["followTf"] == "base_link"
+    plotted = [p["value"] for k, c in layout["configById"].items() if k.startswith("Plot!") for p in c["paths"]]
+    out = tmp_path / "r.mcap"
+    run = gslam("process", _carmen_log(tmp_path / "corridor.clf"), "-o", out, "--no-rrd", "-N", "2", "--occupancy")
+    assert run.exit_code == 0, run.output
+    with open(out, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        schema_of = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
+        stats = json.loads(next(m for _, _, m in reader.iter_messages(topics=["/slam/stats"])).data)
+    for topic in scene["topics"]:
+        assert schema_of.get(topic, "").startswith("foxglove."), (topic, schema_of.get(topic))
+    assert schema_of["/tf"] == "foxglove.FrameTransforms"
+    for path in plotted:
+        topic, field = path.split(".", 1)
+        assert topic == "/slam/stats" and field in stats, path

@@ -32,3 +32,43 @@ def test_the_map_is_drawn_north_up_in_the_web_viewer(tmp_path):
     green = np.argwhere((g > 150) & (r < 110) & (b < 110))  # the GPS track
     assert len(red) > 200 and len(green) > 100, (len(red), len(green))  # the map is drawn where it is
     assert red[:, 0].mean() < green[:, 0].mean() - 50  # rows grow downwards: north is up
+
+
+@pytest.mark.skipif(WHY_NOT is not None, reason=f"no browser check here: {WHY_NOT}")
+def test_mid_timeline_the_path_so_far_ends_at_the_robot(tmp_path):
+    """A robot driving east from x = -8 to +8 m in 40 steps of 1 s beside a GPS line: with the time cursor
+    put at 10 s in the web viewer's time panel, the gold path so far runs from the start to the white
+    robot arrow a quarter of the way along, and nothing of it lies beyond; at the end it runs the whole
+    way."""
+    from PIL import Image
+
+    from pipelines.outputs.rerun_process import Recorder
+
+    rrd = tmp_path / "drive.rrd"
+    n = 40
+    x = np.linspace(-8.0, 8.0, n)
+    rec = Recorder(str(rrd), "gslam-test", np.array([[0.0, -8.0, -3.0], [1.0, 8.0, -3.0]]), None)
+    poses = np.column_stack([x, np.zeros(n), np.zeros(n), np.r_[x[0], x[:-1]], np.zeros(n)])
+    rec.rows(np.arange(n), np.arange(n, dtype=float), {}, poses)
+    rec.finish({})
+
+    def extents(png) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        pix = np.asarray(Image.open(png).convert("RGB")).astype(int)[70:670, 200:1025]  # the map view
+        r, g, b = pix[..., 0], pix[..., 1], pix[..., 2]
+        gold = np.argwhere((r > 200) & (g > 170) & (b < 120))[:, 1]
+        white = np.argwhere((r > 235) & (g > 235) & (b > 235))[:, 1]
+        green = np.argwhere((g > 150) & (r < 110) & (b < 110))[:, 1]
+        return gold, white, green
+
+    gold, white, green = extents(rerun_screenshot.screenshot(rrd, tmp_path / "mid.png", time_s=10.0))
+    assert len(gold) > 50 and len(white) > 20 and len(green) > 100, (len(gold), len(white), len(green))
+    span = green.max() - green.min()  # the GPS line, x = -8 .. 8 m
+
+    def along(cols: np.ndarray) -> float:
+        return float((cols - green.min()) / span)
+
+    # At 10 s the robot is at x = -8 + 16 * 10 / 39 = -3.9 m: a quarter of the way.
+    assert along(gold.min()) < 0.05 and 0.15 < along(gold.max()) < 0.4, (along(gold.min()), along(gold.max()))
+    assert 0.15 < along(np.median(white)) < 0.45 and white.min() >= gold.max() - 10
+    gold_end, _, green_end = extents(rerun_screenshot.screenshot(rrd, tmp_path / "end.png"))
+    assert (gold_end.max() - green_end.min()) / (green_end.max() - green_end.min()) > 0.9

@@ -64,8 +64,12 @@ def assert_nothing_written(out) -> None:
 def test_a_good_small_bag_ingests(tmp_path):
     """The base case the bad ones break: every scan gets its interpolated odometry."""
     report = ingest(small_bag(tmp_path / "good.bag"), tmp_path / "good.mcap")
-    assert report.counts == {ch.ODOM_POSE: 6, ch.LASER: 6}
+    assert report.counts == {ch.ODOM_POSE: 6, ch.ODOM: 6, ch.LASER: 6}
     odom = [m.value for m in McapInput(tmp_path / "good.mcap").messages([ch.ODOM_POSE])]
+    # The same poses as foxglove.PoseInFrame in the odom frame, for viewers.
+    shown = [m.value for m in McapInput(tmp_path / "good.mcap").messages([ch.ODOM])]
+    assert {p.frame_id for p in shown} == {"odom"}
+    np.testing.assert_allclose([p.pose.position.x for p in shown], [o["x_m"] for o in odom], atol=1e-12)
     # Odometry x = 0.5 m/s * t; scans at 0.05 s + 0.2 k: interpolated between the 10 Hz samples.
     np.testing.assert_allclose([o["x_m"] for o in odom], [0.5 * (0.05 + 0.2 * k) for k in range(6)], atol=1e-9)
     assert {o["source"] for o in odom} == {"interpolated"}

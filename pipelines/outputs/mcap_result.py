@@ -14,6 +14,22 @@ from mcaplog.mcapio import AtomicMcapWriter, to_ns
 from pipelines.outputs.writer import RunEnd, RunStart
 from pipelines.run.runner import Step
 
+PATH_POSES_MAX = 512
+"""Most poses in one /slam/path message: past it the updates are thinned by a power-of-two stride."""
+
+
+def path_levels(update_levels: np.ndarray, last_level: int, poses_max: int = PATH_POSES_MAX) -> np.ndarray:
+    """The levels (steps) a /slam/path message shows: the map updates so far (the filter's keyframes,
+    GMapping's linearUpdate nodes), every 2^k-th of them when there are more than `poses_max` (the same
+    updates stay in from one message to the next, so the drawn path does not shimmer), and the last step.
+    """
+    levels = np.asarray(update_levels, dtype=np.intp)
+    stride = 1
+    while len(levels) > stride * (poses_max - 1):
+        stride *= 2
+    levels = levels[::stride]
+    return levels if len(levels) and levels[-1] == last_level else np.append(levels, last_level)
+
 
 class McapResultWriter:
     """Writes /slam/* channels (docs/CHANNELS.md) and the run's metadata."""
@@ -24,6 +40,7 @@ class McapResultWriter:
         self.writer: AtomicMcapWriter | None = None
         self.last_ns = 0
         self.steps_written = 0
+        self._update_levels: list[int] = []  # steps at which the map was updated
 
     def start(self, run: RunStart) -> None:
         self.geometry = run.log.geometry
@@ -61,6 +78,8 @@ class McapResultWriter:
             },
             ns,
         )
+        if r.updated and len(flt.tree):
+            self._path(st, flt, ns)
         if self.snapshot_every and st.event.index % self.snapshot_every == 0:
             xy, p = flt.map_points(r.best)
             w.write_proto(ch.SLAM_MAP, ch.point_cloud(st.event.stamp_s, xy, p), ns)
@@ -101,6 +120,16 @@ class McapResultWriter:
             self.writer.write_proto(ch.SLAM_GRID, ch.occupancy_grid(t_last, prob, origin, cell), ns)
         self.writer.add_metadata("result", end.result)
         return self.writer.finish()
+
+    def _path(self, st: Step, flt: SlamFilter, ns: int) -> None:
+        """/slam/path: the best particle's path as it stands at this update (earlier poses move as the
+        particle's history is corrected), at the updates so far and this step (`path_levels`)."""
+        level = len(flt.tree) - 1
+        self._update_levels.append(level)
+        # The step's best particle is node `best` of the level it recorded (resampling came after).
+        _, poses = flt.tree.node_trajectory(st.result.best, path_levels(self._update_levels, level))
+        msg = ch.poses_in_frame_bytes(st.event.stamp_s, poses, ch.MAP_FRAME)
+        self.writer.write_proto_bytes(ch.SLAM_PATH, ch.PosesInFrame, msg, ns)
 
     def _frames(self, st: Step, ns: int) -> None:
         """The transform tree at the step (/tf) and the scan in the laser frame (/slam/scan): map -> odom is

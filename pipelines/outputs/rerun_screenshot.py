@@ -19,6 +19,9 @@ from pathlib import Path
 LOAD_WAIT_S = 30.0
 """Seconds given to the viewer to load its WebAssembly and the recording (about 15 s on 2 cores)."""
 
+TIME_FIELD_XY = (363, 690)
+"""The time panel's current-time field in rerun-sdk 0.41's web viewer at 1600 x 900 with our blueprint."""
+
 
 def open_command(rrd: Path) -> str:
     """How to open a recording here: the native viewer where there is a screen, else the web viewer
@@ -95,14 +98,25 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def screenshot(rrd: Path, out: Path, size: tuple[int, int] = (1600, 900), wait_s: float = LOAD_WAIT_S) -> Path:
+def screenshot(
+    rrd: Path,
+    out: Path,
+    size: tuple[int, int] = (1600, 900),
+    wait_s: float = LOAD_WAIT_S,
+    time_s: float | None = None,
+) -> Path:
     """Serve `rrd` with `rerun --web-viewer` on free ports, open it in headless Chromium, wait `wait_s`,
-    and write the page as a PNG at `out`."""
+    and write the page as a PNG at `out`. `time_s`: first move the time cursor there on the `time`
+    timeline (seconds since the log's start), as a user does, by typing it into the time panel's field
+    (`TIME_FIELD_XY`: where the default blueprint puts it at the default size); else the cursor stays
+    where the viewer puts it, at the end of the recording."""
     from playwright.sync_api import sync_playwright
 
     why = available()
     if why is not None:
         raise RuntimeError(why)
+    if time_s is not None and size != (1600, 900):
+        raise ValueError("time_s needs the default size, where TIME_FIELD_XY is")
     web, grpc = _free_port(), _free_port()
     rerun = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
     server = subprocess.Popen(
@@ -126,6 +140,13 @@ def screenshot(rrd: Path, out: Path, size: tuple[int, int] = (1600, 900), wait_s
                 page = browser.new_page(viewport={"width": size[0], "height": size[1]})
                 page.goto(url)
                 time.sleep(wait_s)
+                if time_s is not None:
+                    page.mouse.click(*TIME_FIELD_XY)  # (the viewer's UI is one canvas: no DOM to select)
+                    time.sleep(1.0)
+                    page.keyboard.press("Control+A")
+                    page.keyboard.type(f"+{time_s:g}s")
+                    page.keyboard.press("Enter")
+                    time.sleep(3.0)
                 Path(out).parent.mkdir(parents=True, exist_ok=True)
                 page.screenshot(path=str(out))
             finally:
@@ -159,12 +180,13 @@ def main() -> int:
     parser.add_argument("rrd", type=Path)
     parser.add_argument("-o", "--output", type=Path, required=True)
     parser.add_argument("--wait", type=float, default=LOAD_WAIT_S)
+    parser.add_argument("--time", type=float, help="the time cursor at this many seconds (default: the end)")
     a = parser.parse_args()
     why = available()
     if why is not None:
         print(f"error: {why}", file=sys.stderr)
         return 2
-    print(f"wrote {screenshot(a.rrd, a.output, wait_s=a.wait)}")
+    print(f"wrote {screenshot(a.rrd, a.output, wait_s=a.wait, time_s=a.time)}")
     return 0
 
 

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from gslam.ancestry import AncestryTree
 from gslam.filter import SlamFilter
 from gslam.se2 import compose, inverse
 
@@ -49,13 +50,36 @@ class LaserMount:
         return compose(laser_poses, inverse(self.pose))
 
 
+class BaseFrameTree:
+    """A filter's ancestry tree whose trajectories are the base's poses."""
+
+    def __init__(self, tree: AncestryTree, mount: LaserMount) -> None:
+        self._tree = tree
+        self._mount = mount
+
+    def __len__(self) -> int:
+        return len(self._tree)
+
+    def trajectory(self, particle: int, levels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        t, traj = self._tree.trajectory(particle, levels)
+        return t, self._mount.base_of(traj)
+
+    def node_trajectory(self, node: int, levels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        t, traj = self._tree.node_trajectory(node, levels)
+        return t, self._mount.base_of(traj)
+
+
 class BaseFrameView:
-    """A SLAM filter seen from the robot's base: `best_trajectory()` gives base poses; everything else
-    (maps, landmarks, grids, which are in the world frame) passes through."""
+    """A SLAM filter seen from the robot's base: `best_trajectory()` and `tree.trajectory()` give base
+    poses; everything else (maps, landmarks, grids, which are in the world frame) passes through."""
 
     def __init__(self, flt: SlamFilter, mount: LaserMount) -> None:
         self._flt = flt
         self._mount = mount
+
+    @property
+    def tree(self) -> BaseFrameTree:
+        return BaseFrameTree(self._flt.tree, self._mount)
 
     def best_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         t, traj = self._flt.best_trajectory()
