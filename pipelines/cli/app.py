@@ -317,7 +317,7 @@ def process(
             ("occupancy", True if occupancy else None, "--occupancy"),
         ]
         if live or live_url:
-            from pipelines.outputs.rerun_screenshot import DEFAULT_LIVE_URL
+            from pipelines.outputs.rerun_viewer import DEFAULT_LIVE_URL
 
             run_flags.append(("live_url", live_url or DEFAULT_LIVE_URL, "--live-url"))
         run_settings = [Setting(k, getattr(v, "value", v), f"{flag} {v}") for k, v, flag in run_flags if v is not None]
@@ -332,7 +332,7 @@ def process(
         if cfg.live_url is not None:
             if rrd_path is None:
                 fail("--live streams the Rerun recording: it cannot go with --no-rrd")
-            from pipelines.outputs.rerun_screenshot import live_viewer
+            from pipelines.outputs.rerun_viewer import live_viewer
 
             typer.echo(live_viewer(cfg.live_url))
         if log_format is not None:
@@ -348,7 +348,7 @@ def process(
         typer.echo(summary.describe())
         typer.echo(f"wrote {summary.output}")
         if summary.rrd is not None:
-            from pipelines.outputs.rerun_screenshot import open_command
+            from pipelines.outputs.rerun_viewer import open_command
 
             typer.echo(f"wrote {summary.rrd}  (open it with: {open_command(summary.rrd)})")
     except BaseException as e:

@@ -125,7 +125,7 @@ def run_demo(
     )
     say("[5/5] plotting ...")
     figure = plot_result(result, out / "demo.png", input_mcap)
-    from pipelines.outputs.rerun_screenshot import open_command
+    from pipelines.outputs.rerun_viewer import open_command
 
     say(f"done in {time.perf_counter() - t0:.0f} s. Open the recording with:  {open_command(rrd)}")
     return DemoReport(log_dir, input_mcap, result, rrd, figure, metrics, err, dr_err, within, free)

@@ -16,60 +16,13 @@ import sys
 import time
 from pathlib import Path
 
+from pipelines.outputs.rerun_viewer import free_port
+
 LOAD_WAIT_S = 30.0
 """Seconds given to the viewer to load its WebAssembly and the recording (about 15 s on 2 cores)."""
 
 TIME_FIELD_XY = (363, 690)
 """The time panel's current-time field in rerun-sdk 0.41's web viewer at 1600 x 900 with our blueprint."""
-
-
-def open_command(rrd: Path) -> str:
-    """How to open a recording here: the native viewer where there is a screen, else the web viewer
-    (`rerun --web-viewer` serves it; open the address it prints in a browser, e.g. through an SSH tunnel)."""
-    if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") or sys.platform in ("darwin", "win32"):
-        return f"rerun {rrd}"
-    return f"rerun --web-viewer {rrd}   (no screen here: it serves the viewer at http://localhost:9090)"
-
-
-DEFAULT_LIVE_URL = "rerun+http://127.0.0.1:9876/proxy"
-"""Where `gslam process --live` streams by default: the port a Rerun viewer listens on."""
-
-
-def live_viewer(url: str = DEFAULT_LIVE_URL) -> str:
-    """Make sure a viewer listens at `url` for `--live`: when nothing does (and `url` is on this machine),
-    start one that outlives the run (the native viewer where there is a screen, else `rerun --serve-web`,
-    the web viewer). Returns a line saying where to look."""
-    from urllib.parse import urlparse
-
-    where = urlparse(url.replace("rerun+", "", 1).replace("rerun://", "http://", 1))
-    host, port = where.hostname or "127.0.0.1", where.port or 9876
-    with socket.socket() as s:
-        s.settimeout(1.0)
-        if s.connect_ex((host, port)) == 0:
-            return f"streaming live to the Rerun viewer at {url}"
-    if host not in ("127.0.0.1", "localhost", "::1"):
-        raise ValueError(f"--live-url {url}: no Rerun viewer answers at {host}:{port}")
-    rerun = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
-    screen = os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") or sys.platform in ("darwin", "win32")
-    web = 9090 if _port_free(9090) else _free_port()
-    args = [rerun, "--port", str(port)]
-    if not screen:
-        args += ["--serve-web", "--web-viewer", "--web-viewer-port", str(web)]
-    subprocess.Popen(
-        args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL, start_new_session=True
-    )  # stays open after the run, for the user to look at
-    deadline = time.monotonic() + 20
-    while time.monotonic() < deadline:
-        with socket.socket() as s:
-            if s.connect_ex((host, port)) == 0:
-                break
-        time.sleep(0.2)
-    if screen:
-        return f"started the Rerun viewer; streaming live to {url}"
-    return (
-        f"started a Rerun web viewer (no screen here): open http://localhost:{web}/?url={url} in a browser "
-        f"(from another machine: ssh -L {web}:localhost:{web} -L {port}:localhost:{port} ...)"
-    )
 
 
 def chromium() -> str | None:
@@ -85,17 +38,6 @@ def available() -> str | None:
     except ImportError:
         return "the playwright package is not installed (pip install playwright)"
     return None
-
-
-def _port_free(port: int) -> bool:
-    with socket.socket() as s:
-        return s.connect_ex(("127.0.0.1", port)) != 0
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def screenshot(
@@ -117,7 +59,7 @@ def screenshot(
         raise RuntimeError(why)
     if time_s is not None and size != (1600, 900):
         raise ValueError("time_s needs the default size, where TIME_FIELD_XY is")
-    web, grpc = _free_port(), _free_port()
+    web, grpc = free_port(), free_port()
     rerun = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
     server = subprocess.Popen(
         [rerun, "--web-viewer", "--web-viewer-port", str(web), "--port", str(grpc), str(rrd)],
