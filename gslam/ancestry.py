@@ -22,6 +22,7 @@ class AncestryTree:
         self._hop_parents: list[np.ndarray] = []
         self._current: np.ndarray | None = None  # node index at the last level, per particle
         self._moved = False  # continue_from since the last record
+        self._last_lineage = np.empty(0, dtype=np.intp)  # the last `lineage` computed (levels never change)
 
     def __len__(self) -> int:
         return self._len
@@ -54,16 +55,26 @@ class AncestryTree:
         self._moved = True
 
     def lineage(self, node: int) -> np.ndarray:
-        """The node index, at every level, of the history of the last level's `node` (T,)."""
+        """The node index, at every level, of the history of the last level's `node` (T,).
+
+        Histories merge going back (resampling keeps few lines of descent), so the walk stops at the first
+        hop where it meets the previous lineage computed: the same node at the same level has the same
+        ancestors, which are copied."""
         out = np.empty(self._len, dtype=np.intp)
         if not self._len:
             return out
+        known = self._last_lineage
         end = self._len
         for level, parents in zip(reversed(self._hop_levels), reversed(self._hop_parents), strict=True):
             out[level:end] = node
+            if level < len(known) and known[level] == node:
+                out[:level] = known[:level]
+                break
             node = int(parents[node])
             end = level
-        out[:end] = node
+        else:
+            out[:end] = node
+        self._last_lineage = out
         return out
 
     def trajectory(self, particle: int, levels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:

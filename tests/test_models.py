@@ -221,6 +221,38 @@ def test_ancestry_tree_shares_histories():
     assert tree.distinct_ancestors(0) == 1
 
 
+def test_ancestry_tree_matches_walking_every_parent_link():
+    """Random resamplings (several between records, some the identity): every trajectory read, by
+    particle or by a level's node, in any order, is the one a walk over every level's parent gives."""
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        tree, poses, parents, current, n = AncestryTree(), [], [], None, 6
+        for k in range(150):
+            level = rng.standard_normal((n, 3))
+            tree.record(float(k), level)
+            poses.append(level)
+            parents.append(np.arange(n) if current is None else current)
+            current = np.arange(n)
+            for _ in range(int(rng.integers(0, 3))):
+                chosen = rng.integers(0, n, n) if rng.random() < 0.8 else np.arange(n)
+                tree.continue_from(chosen)
+                current = current[chosen]
+            if rng.random() < 0.3:
+
+                def walk(node: int, poses=poses, parents=parents) -> np.ndarray:
+                    out = []
+                    for t in range(len(poses) - 1, -1, -1):
+                        out.append(poses[t][node])
+                        node = int(parents[t][node])
+                    return np.array(out[::-1])
+
+                node, particle = int(rng.integers(0, n)), int(rng.integers(0, n))
+                np.testing.assert_array_equal(tree.node_trajectory(node)[1], walk(node))
+                np.testing.assert_array_equal(tree.trajectory(particle)[1], walk(int(current[particle])))
+                levels = np.sort(rng.choice(len(poses), size=min(5, len(poses)), replace=False))
+                np.testing.assert_array_equal(tree.node_trajectory(node, levels)[1], walk(node)[levels])
+
+
 def test_metrics_on_constructed_trajectories():
     t = np.linspace(0, 10, 101)
     path = np.column_stack([np.cos(t), np.sin(t), t])
