@@ -3,10 +3,7 @@ is far closer to GPS than dead reckoning."""
 
 from __future__ import annotations
 
-import shutil
 import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,6 +13,7 @@ from mcaplog import channels as ch
 from pipelines.cli.app import app
 from pipelines.evaluation.evaluate import METRIC_KEYS, evaluate_result, read_result
 from pipelines.evaluation.mcap_info import mcap_info
+from pipelines.outputs.rerun_viewer import rerun_binary
 
 DEAD_RECKONING_ERROR_M = 1.67  # noise-free dead reckoning from the same initial pose (measured)
 
@@ -48,8 +46,7 @@ def test_outputs_read_back(carpark_result):
 def test_rrd_verifies(carpark_result):
     rrd = carpark_result.with_suffix(".rrd")
     assert rrd.exists() and rrd.stat().st_size > 10_000
-    rerun = shutil.which("rerun") or str(Path(sys.executable).parent / "rerun")
-    proc = subprocess.run([rerun, "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=120)
+    proc = subprocess.run([rerun_binary(), "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
 
 
@@ -107,8 +104,7 @@ def test_interrupted_run_leaves_valid_outputs(carpark_mcap, tmp_path, monkeypatc
     assert info["channels"][ch.SLAM_POSE] == 39
     assert info["metadata"]["result"]["interrupted"] is True
     assert read_result(out).trajectory.shape[0] == 39
-    rerun = shutil.which("rerun") or str(Path(sys.executable).parent / "rerun")
-    assert subprocess.run([rerun, "rrd", "verify", str(rrd)], capture_output=True, timeout=120).returncode == 0
+    assert subprocess.run([rerun_binary(), "rrd", "verify", str(rrd)], capture_output=True, timeout=120).returncode == 0
     assert not list(tmp_path.glob(".*.tmp"))
 
 

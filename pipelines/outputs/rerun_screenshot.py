@@ -10,13 +10,12 @@ from __future__ import annotations
 
 import os
 import shutil
-import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-from pipelines.outputs.rerun_viewer import free_port
+from pipelines.outputs.rerun_viewer import free_port, rerun_binary, wait_for_port
 
 LOAD_WAIT_S = 30.0
 """Seconds given to the viewer to load its WebAssembly and the recording (about 15 s on 2 cores)."""
@@ -60,20 +59,14 @@ def screenshot(
     if time_s is not None and size != (1600, 900):
         raise ValueError("time_s needs the default size, where TIME_FIELD_XY is")
     web, grpc = free_port(), free_port()
-    rerun = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
     server = subprocess.Popen(
-        [rerun, "--web-viewer", "--web-viewer-port", str(web), "--port", str(grpc), str(rrd)],
+        [rerun_binary(), "--web-viewer", "--web-viewer-port", str(web), "--port", str(grpc), str(rrd)],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
         start_new_session=True,  # `rerun` is a Python wrapper around the viewer binary: end them together
     )
     try:
-        deadline = time.monotonic() + 30
-        while time.monotonic() < deadline:  # the web server is up
-            with socket.socket() as s:
-                if s.connect_ex(("127.0.0.1", web)) == 0:
-                    break
-            time.sleep(0.2)
+        wait_for_port("127.0.0.1", web, 30.0)  # the web server is up
         url = f"http://127.0.0.1:{web}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc}%2Fproxy"
         args = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
         with sync_playwright() as p:

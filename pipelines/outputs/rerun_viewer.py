@@ -11,10 +11,31 @@ import time
 from pathlib import Path
 
 
+def has_screen() -> bool:
+    """A native viewer can open a window here."""
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")) or sys.platform in ("darwin", "win32")
+
+
+def rerun_binary() -> str:
+    """The `rerun` command of this environment (on PATH, else beside the interpreter)."""
+    return shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
+
+
+def wait_for_port(host: str, port: int, timeout_s: float) -> bool:
+    """Whether something listens at host:port within `timeout_s` (tried every 0.2 s)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        with socket.socket() as s:
+            if s.connect_ex((host, port)) == 0:
+                return True
+        time.sleep(0.2)
+    return False
+
+
 def open_command(rrd: Path) -> str:
     """How to open a recording here: the native viewer where there is a screen, else the web viewer
     (`rerun --web-viewer` serves it; open the address it prints in a browser, e.g. through an SSH tunnel)."""
-    if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") or sys.platform in ("darwin", "win32"):
+    if has_screen():
         return f"rerun {rrd}"
     return f"rerun --web-viewer {rrd}   (no screen here: it serves the viewer at http://localhost:9090)"
 
@@ -37,21 +58,15 @@ def live_viewer(url: str = DEFAULT_LIVE_URL) -> str:
             return f"streaming live to the Rerun viewer at {url}"
     if host not in ("127.0.0.1", "localhost", "::1"):
         raise ValueError(f"--live-url {url}: no Rerun viewer answers at {host}:{port}")
-    rerun = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
-    screen = os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") or sys.platform in ("darwin", "win32")
+    screen = has_screen()
     web = 9090 if port_free(9090) else free_port()
-    args = [rerun, "--port", str(port)]
+    args = [rerun_binary(), "--port", str(port)]
     if not screen:
         args += ["--serve-web", "--web-viewer", "--web-viewer-port", str(web)]
     subprocess.Popen(
         args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL, start_new_session=True
     )  # stays open after the run, for the user to look at
-    deadline = time.monotonic() + 20
-    while time.monotonic() < deadline:
-        with socket.socket() as s:
-            if s.connect_ex((host, port)) == 0:
-                break
-        time.sleep(0.2)
+    wait_for_port(host, port, 20.0)
     if screen:
         return f"started the Rerun viewer; streaming live to {url}"
     return (
