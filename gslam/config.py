@@ -226,6 +226,18 @@ class FilterConfig:
     odom_sigma: tuple[float, float, float, float] = (0.1, 0.2, 0.1, 0.2)
     """Odometry motion noise (srr, srt, str, stt), in the robot frame (`motion.apply_odometry`): sd of
     translation per metre and per radian, sd of rotation per metre and per radian (GMapping's defaults)."""
+    motion_noise_adaptive: bool = True
+    """Learn how good the odometry's heading is from the scan matches and narrow the motion model's
+    heading noise to it (`GSlamFilter._adapt_heading_noise`): the model's defaults (GMapping's) are an
+    upper bound, wide enough for a poor robot; sampling a good robot's heading that widely sends
+    particles into rotated alignments of the scan (aliasing) that a narrower spread does not reach.
+    Translation noise is left as the model gives it: along a corridor the matches cannot see it."""
+    motion_noise_window: int = 20
+    """Updates over which the heading error is averaged (a running mean with weight 1 / window)."""
+    motion_noise_safety: float = 3.0
+    """The heading noise is this many times the heading error the matches found (as sd)."""
+    motion_noise_min_scale: float = 0.2
+    """The least factor on the model's heading noise."""
     initial_sigma_xy_m: float = 0.0
     """Spread [m, sd] of the particles' initial positions (0: all start at the origin or the GPS fit)."""
     initial_sigma_phi_rad: float = 0.0
@@ -316,6 +328,8 @@ _LIMITS: dict[str, tuple[float, float, bool]] = {
     "match_max_iterations": (1, 10_000, True),
     "match_min_score": (0, 1, True),
     "resample_threshold": (0, 1, False),
+    "motion_noise_window": (1, 1_000_000, True),
+    "motion_noise_min_scale": (0, 1, True),
 }
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Protocol
@@ -82,6 +83,11 @@ class GSlamFilter:
         self._travel_m = 0.0  # path length and turn of the noise-free motion since the last update
         self._turn_rad = 0.0
         self._fit_reference = 0.0  # median fit (score per return) of the previous update's matches
+        self.heading_noise_scale = 1.0
+        """The factor on the motion model's heading noise (`motion_noise_adaptive`), learnt from the matches."""
+        # the running mean of (error / model sd)^2; 1: the model holds until the matches show otherwise
+        self._heading_error_ratio2 = 1.0
+        self._heading_noise = np.zeros(n)  # the model's heading noise drawn since the last update, unscaled
 
     # ------------------------------------------------------------------------------------------
     def best_particle(self) -> int:
@@ -116,7 +122,16 @@ class GSlamFilter:
             scan = Scan(scan.t_s, scan.ranges_m, usable, scan.min_range_m)
         # 1. Draw s_t^i from the motion model.
         if predict is not None:
-            self.poses = predict(self.poses, self.rng)
+            if cfg.motion_noise_adaptive:
+                exact = predict(self.poses, None)
+                sampled = predict(self.poses, self.rng)
+                noise = wrap_angle(sampled[:, 2] - exact[:, 2])
+                self._heading_noise += noise
+                if self.heading_noise_scale != 1.0:
+                    sampled[:, 2] = wrap_angle(exact[:, 2] + self.heading_noise_scale * noise)
+                self.poses = sampled
+            else:
+                self.poses = predict(self.poses, self.rng)
             before = self._filled[0].copy()
             self._filled = predict(self._filled, None)
             self._travel_m += float(np.hypot(*(self._filled[0, :2] - before[:2])))
@@ -141,6 +156,8 @@ class GSlamFilter:
             )
         layout = self._layout if self._layout is not None else distinct_maps(self.maps)
         matched, matched_log_like = self._match_and_weigh(scan, layout)
+        if cfg.motion_noise_adaptive and 2 * matched >= cfg.particles:
+            self._adapt_heading_noise()
         # 2 to 5. New points, the update of eq. 7, pruning; the importance factors.
         self.maps, self._layout, log_like, map_points_total = self.map_update(
             self.maps, layout, self.poses, scan, self.rng, matched_log_like
@@ -169,11 +186,28 @@ class GSlamFilter:
                 self._layout = (xy, p, lo[parents], hi[parents])
             result.resampled = True
         self._last_update_pose = self.poses[self.best_particle()].copy()
+        self._heading_noise = np.zeros(len(self.poses))
         self._filled = self.poses.copy()
         self._travel_m = self._turn_rad = 0.0
         self._points_total = sum(len(m) for m in self.maps)  # until the next update
         self.steps += 1
         return result
+
+    def _adapt_heading_noise(self) -> None:
+        """`motion_noise_adaptive`: compare the odometry's heading error that the matches found since the last
+        update (the median over the particles of matched minus noise-free heading) with the heading noise
+        the motion model drew (its sd over the particles, unscaled); keep the running mean of the squared
+        ratio over the last `motion_noise_window` updates, and scale the model's heading noise by
+        `motion_noise_safety` x its square root, within [`motion_noise_min_scale`, 1]."""
+        cfg = self.cfg
+        model_sd = float(np.sqrt(np.mean(self._heading_noise**2)))
+        if model_sd < 1e-9:
+            return  # no motion, nothing drawn
+        error = float(np.median(wrap_angle(self.poses[:, 2] - self._filled[:, 2])))
+        alpha = 1.0 / cfg.motion_noise_window
+        self._heading_error_ratio2 += alpha * ((error / model_sd) ** 2 - self._heading_error_ratio2)
+        scale = cfg.motion_noise_safety * math.sqrt(self._heading_error_ratio2)
+        self.heading_noise_scale = min(1.0, max(cfg.motion_noise_min_scale, scale))
 
     def _match_and_weigh(self, scan: Scan, layout: tuple[np.ndarray, ...]) -> tuple[int, np.ndarray]:
         """Open point 6: refine every particle's motion-model sample by matching the scan against its own

@@ -48,7 +48,7 @@ def test_only_the_command_line_reaches_into_ingest():
 
 
 # Inside pipelines, each room imports only the rooms below it (the command line at the top).
-PIPELINE_ROOMS = ["cli", "bench", "demo", "process", "outputs", "evaluation", "run", "methods", "errors"]
+PIPELINE_ROOMS = ["cli", "bench", "demo", "process", "localise", "outputs", "evaluation", "run", "methods", "errors"]
 
 
 def _runtime_imports(path: Path) -> set[str]:

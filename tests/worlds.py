@@ -108,6 +108,31 @@ def corridor_world(outer_m: float = 14.0, corridor_m: float = 2.0) -> World:
     return World(pillars, np.array(walls, dtype=float))
 
 
+def office_world() -> World:
+    """A ring round an L-shaped block inside an uneven rectangle, with cabinets of different sizes along
+    the outer walls and a few pillars: no two stretches of the ring look alike for long (the corridor world
+    is a square whose quarter turns fit each other), for localisation's kidnap and recovery tests. The
+    robot loop of `simulate_robot_loop` (half-side 6 m) runs clear of every wall."""
+    walls = [
+        [-8.5, -7.5, 8.0, -7.5],
+        [8.0, -7.5, 8.0, 8.0],
+        [8.0, 8.0, -8.5, 8.0],
+        [-8.5, 8.0, -8.5, -7.5],
+        # the block: a square with a notch cut from its top right corner
+        [-4.5, -4.5, 4.5, -4.5],
+        [4.5, -4.5, 4.5, 2.0],
+        [4.5, 2.0, 3.0, 2.0],
+        [3.0, 2.0, 3.0, 4.5],
+        [3.0, 4.5, -4.5, 4.5],
+        [-4.5, 4.5, -4.5, -4.5],
+    ]
+    for x0, y0, x1, y1 in ((-2.0, -7.5, 0.5, -6.8), (3.0, -7.5, 3.6, -7.0), (7.2, -3.0, 8.0, -1.0),
+                           (7.4, 4.0, 8.0, 4.4), (-5.0, 7.0, -1.5, 8.0), (-8.5, -1.0, -7.1, 1.5)):  # fmt: skip
+        walls += [[x0, y0, x1, y0], [x1, y0, x1, y1], [x1, y1, x0, y1], [x0, y1, x0, y0]]
+    pillars = np.array([[5.0, -5.2, 0.2], [-5.3, 5.4, 0.15], [-5.2, -5.0, 0.25]])
+    return World(pillars, np.array(walls, dtype=float))
+
+
 @dataclass
 class RobotLog:
     """A robot's log: base poses (truth and odometry) and the scans of its mounted laser."""

@@ -521,7 +521,8 @@ def bench(
             "--suite",
             help="carpark: the paper's Tables 3 and 4; freiburg: relations error on the Freiburg indoor logs "
             "(N 30, seeds 0..SEEDS-1); speed: whole-run wall time, ms per update and peak memory (median of 3); "
-            "robustness: the corpus (Freiburg, Radish with corrupted odometry) beside GMapping and odometry.",
+            "robustness: the corpus (Freiburg, Radish with corrupted odometry) beside GMapping and odometry; "
+            "localise: `gslam localise` in maps `gslam process` built (global, wrong start, half map, kidnap).",
         ),
     ] = "carpark",
     freiburg: Annotated[
@@ -558,8 +559,8 @@ def bench(
     )
     from pipelines.bench.suites import freiburg_section, replace_section, run_suite, speed_section
 
-    if suite not in ("carpark", "freiburg", "speed", "robustness"):
-        fail(f"--suite {suite}: expected carpark, freiburg, speed or robustness")
+    if suite not in ("carpark", "freiburg", "speed", "robustness", "localise"):
+        fail(f"--suite {suite}: expected carpark, freiburg, speed, robustness or localise")
     if output is not None:
         check_outputs({"-o": output}, {"--data": data, "--freiburg": freiburg, "--datasets": datasets})
     command = invocation(ctx)
@@ -581,6 +582,18 @@ def bench(
             datasets, list(range(seeds or 3)), lambda s: typer.echo(s, err=True), harness, only=only
         )
         text = robustness_section(results, command, machine_description(), versions(), 30, 0)
+    elif suite == "localise":
+        from pipelines.bench.localise import localise_section, run_localise_bench
+        from pipelines.bench.suites import ingest_to
+
+        logs = [freiburg / "mit-csail.clf.gz", freiburg / "intel.clf.gz"]
+        for log in logs:
+            if not log.exists():
+                fail(f"--freiburg {freiburg}: {log.name} not found")
+        with tempfile.TemporaryDirectory(prefix="gslam-bench-localise-in-") as tmp:
+            inputs = [ingest_to(log, Path(tmp)) for log in logs]
+            runs = run_localise_bench(inputs, lambda s: typer.echo(s, err=True))
+        text = localise_section(runs, command, machine_description(), versions())
     elif suite != "carpark":
         logs = [freiburg / "mit-csail.clf.gz", freiburg / "intel.clf.gz"]
         for log in logs:
@@ -695,6 +708,56 @@ def sweep(
     typer.echo(f"wrote {result.md_path} and {result.csv_path}")
     if result.failed:
         fail(f"{result.failed} of {len(result.records)} tasks failed (their errors: {result.md_path})", code=1)
+
+
+@app.command()
+@guarded
+def localise(
+    map_path: Annotated[
+        Path, typer.Argument(metavar="MAP", help="The map: a `gslam process` result .mcap or a map_server .yaml.")
+    ],
+    input_mcap: Annotated[Path, typer.Argument(metavar="IN", help="Ingested log (MCAP) with odometry and scans.")],
+    output: Annotated[Path, typer.Argument(metavar="OUT", help="Result MCAP.")],
+    initial_pose: Annotated[
+        tuple[float, float, float] | None,
+        typer.Option("--initial-pose", metavar="X Y YAW", help="Start here (m, m, rad, map frame); else global."),
+    ] = None,
+    initial_sigma: Annotated[
+        tuple[float, float] | None,
+        typer.Option("--initial-sigma", metavar="XY YAW", help="Spread (sd, m and rad) around --initial-pose."),
+    ] = None,
+    rrd: Annotated[Path | None, typer.Option("--rrd", help="Rerun recording (default: OUT with .rrd).")] = None,
+    no_rrd: Annotated[bool, typer.Option("--no-rrd", help="Do not write the Rerun recording.")] = False,
+    seed: Annotated[int, typer.Option("--seed", min=0, max=2**32 - 1, help="Seed of the particle filter.")] = 0,
+    max_particles: Annotated[
+        int, typer.Option("--max-particles", min=1, help="KLD sampling's largest count after the first update.")
+    ] = 5000,
+    global_particles: Annotated[
+        int, typer.Option("--global-particles", min=1, help="Particles of the global search (no initial pose).")
+    ] = 20000,
+    skip_scans: Annotated[int, typer.Option("--skip-scans", min=0, help="Start at this scan of IN.")] = 0,
+) -> None:
+    """Localise a log in a saved map: Monte Carlo localisation (KLD-adaptive, scan-matching proposal,
+    recovery from kidnapping), with a tracking / lost state and a fitness score at every scan."""
+    from gslam.localise import LocaliseConfig
+    from pipelines.localise.run import LocaliseRequest, localise
+
+    if initial_sigma is not None and initial_pose is None:
+        fail("--initial-sigma needs --initial-pose")
+    rrd_path = None if no_rrd else (rrd or output.with_suffix(".rrd"))
+    outputs = {"OUT": output, **({"--rrd": rrd_path} if rrd_path is not None else {})}
+    check_outputs(outputs, {"MAP": map_path, "IN": input_mcap})
+    try:
+        cfg = LocaliseConfig(seed=seed, max_particles=max_particles, global_particles=global_particles,
+                             min_particles=min(100, max_particles))  # fmt: skip
+    except ValueError as e:
+        fail(str(e))
+    request = LocaliseRequest(map_path, input_mcap, output, rrd_path, initial_pose, initial_sigma, cfg, skip_scans)
+    with reporting("localise", "scans") as (report, _):
+        summary = localise(request, report)
+    typer.echo(f"map {summary.map_source}")
+    typer.echo(summary.describe())
+    typer.echo(f"wrote {output}" + (f" and {rrd_path}" if rrd_path is not None else ""))
 
 
 def run() -> None:
