@@ -140,11 +140,11 @@ def run_localise_bench(inputs: list[Path], progress: Callable[[str], None]) -> l
                     break
                 src = k + shift if k >= jump else k
                 if k:
-                    prev = stream[k - 1 + (shift if k - 1 >= jump else 0)][1]
+                    prev = stream[k - 1 + (shift if k - 1 >= jump else 0)][2]
                     if k == jump:
-                        prev = stream[src - 1][1]  # the odometry goes on smoothly
-                    loc.predict(odometry_delta(prev, stream[src][1]))
-                s = loc.step(stream[src][0], stream[src][2])
+                        prev = stream[src - 1][2]  # the odometry goes on smoothly
+                    loc.predict(odometry_delta(prev, stream[src][2]))
+                s = loc.step(stream[src][1], stream[src][3])
                 if k >= jump:
                     err = math.hypot(*(s.pose[:2] - ref[src, :2]))
                     tracked_after.append((s.tracking and err < 0.3, travelled[src] - travelled[jump + shift]))

@@ -109,7 +109,7 @@ class _RerunOut:
     """The recording: the map once, then per scan the pose, the path so far, particles at updates and the
     state as scalars; written to a temporary file and moved into place at the end."""
 
-    def __init__(self, path: Path, saved: SavedMap) -> None:
+    def __init__(self, path: Path, saved: SavedMap, t0_s: float) -> None:
         import rerun as rr
 
         self.rr = rr
@@ -121,16 +121,17 @@ class _RerunOut:
         self.rec.log("world", rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
         self.rec.log("world/map", rr.Points2D(saved.points, colors=[[200, 200, 200]], radii=0.04), static=True)
         self.path_xy: list[np.ndarray] = []
+        self.t0_s = t0_s  # the timeline "time" counts from the log's start, as `gslam process`'s
 
     def step(self, k: int, st: LocaliseStep, base: np.ndarray, particles: np.ndarray | None) -> None:
         rr, rec = self.rr, self.rec
         rec.set_time("scan", sequence=k)
-        rec.set_time("time", duration=st.t_s)
+        rec.set_time("time", duration=st.t_s - self.t0_s)
         colour = [60, 220, 90] if st.tracking else [230, 60, 60]
         heading = 0.6 * np.array([[math.cos(base[2]), math.sin(base[2])]])
         rec.log("world/robot", rr.Arrows2D(origins=[base[:2]], vectors=heading, colors=[colour], radii=0.06))
         self.path_xy.append(base[:2].copy())
-        if k % 10 == 0:
+        if k % 200 == 0:  # the whole path so far (every scan would grow the file with the square of the log)
             rec.log("world/path", rr.LineStrips2D([np.array(self.path_xy)], colors=[[255, 215, 60]], radii=0.03))
         if particles is not None:
             rec.log("world/particles", rr.Points2D(particles[:, :2], colors=[[255, 140, 0]], radii=0.05))
@@ -179,7 +180,7 @@ def localise(req: LocaliseRequest, progress: Callable[[int, int], None] | None =
     initial = None if req.initial_pose is None else laser_of(np.asarray(req.initial_pose, dtype=float))
     loc = MonteCarloLocaliser(saved.field, req.config, initial, req.initial_sigma)
     out = AtomicMcapWriter(req.output, profile="gslam-localise")
-    rrd = _RerunOut(req.rrd, saved) if req.rrd is not None else None
+    rrd = _RerunOut(req.rrd, saved, log.start_s) if req.rrd is not None else None
     t_list, poses, tracking, travelled = [], [], [], []
     odom_prev = odom_last = None
     travel = 0.0
