@@ -238,6 +238,13 @@ class FilterConfig:
     """The heading noise is this many times the heading error the matches found (as sd)."""
     motion_noise_min_scale: float = 0.2
     """The least factor on the model's heading noise."""
+    motion_noise_clip: float = 3.0
+    """Robust update of the learnt heading error: one update's squared error ratio enters the running mean
+    at most this squared times the mean (held no lower than the floor's level, (min_scale / safety)^2), as
+    a Huber-type estimator does, so that a single slip (an outlier the matcher corrects) does not reopen
+    the model for the next `window` x 2 updates, while errors that stay large still grow the estimate by
+    up to (1 + (clip^2 - 1) / window) per update (floor to full model in about 10 updates). 0: off
+    (the plain running mean of squares)."""
     initial_sigma_xy_m: float = 0.0
     """Spread [m, sd] of the particles' initial positions (0: all start at the origin or the GPS fit)."""
     initial_sigma_phi_rad: float = 0.0
@@ -330,6 +337,7 @@ _LIMITS: dict[str, tuple[float, float, bool]] = {
     "resample_threshold": (0, 1, False),
     "motion_noise_window": (1, 1_000_000, True),
     "motion_noise_min_scale": (0, 1, True),
+    "motion_noise_safety": (0, math.inf, False),
 }
 
 

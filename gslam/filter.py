@@ -197,7 +197,8 @@ class GSlamFilter:
         """`motion_noise_adaptive`: compare the odometry's heading error that the matches found since the last
         update (the median over the particles of matched minus noise-free heading) with the heading noise
         the motion model drew (its sd over the particles, unscaled); keep the running mean of the squared
-        ratio over the last `motion_noise_window` updates, and scale the model's heading noise by
+        ratio over the last `motion_noise_window` updates (each update's ratio clipped at `motion_noise_clip` x
+        the running one: robust to a single slip), and scale the model's heading noise by
         `motion_noise_safety` x its square root, within [`motion_noise_min_scale`, 1]."""
         cfg = self.cfg
         model_sd = float(np.sqrt(np.mean(self._heading_noise**2)))
@@ -205,7 +206,12 @@ class GSlamFilter:
             return  # no motion, nothing drawn
         error = float(np.median(wrap_angle(self.poses[:, 2] - self._filled[:, 2])))
         alpha = 1.0 / cfg.motion_noise_window
-        self._heading_error_ratio2 += alpha * ((error / model_sd) ** 2 - self._heading_error_ratio2)
+        ratio2 = (error / model_sd) ** 2
+        if cfg.motion_noise_clip > 0:
+            # Huber-type: an outlier (a slip the matcher corrected) moves the mean by a bounded step
+            level = max(self._heading_error_ratio2, (cfg.motion_noise_min_scale / cfg.motion_noise_safety) ** 2)
+            ratio2 = min(ratio2, cfg.motion_noise_clip**2 * level)
+        self._heading_error_ratio2 += alpha * (ratio2 - self._heading_error_ratio2)
         scale = cfg.motion_noise_safety * math.sqrt(self._heading_error_ratio2)
         self.heading_noise_scale = min(1.0, max(cfg.motion_noise_min_scale, scale))
 

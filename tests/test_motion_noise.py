@@ -78,3 +78,37 @@ def test_options_are_validated():
     with pytest.raises(ValueError, match="motion_noise_window"):
         FilterConfig(motion_noise_window=0)
     assert math.isclose(FilterConfig().motion_noise_safety, 3.0)
+
+
+def _feed(flt: GSlamFilter, ratios: list[float], model_sd: float = 0.1) -> list[float]:
+    """Feed the estimator updates whose matched heading error is `ratio` x the model's drawn noise (sd
+    `model_sd` over the particles); returns the scale after each."""
+    n = flt.cfg.particles
+    drawn = np.where(np.arange(n) % 2 == 0, model_sd, -model_sd)  # sd model_sd exactly
+    scales = []
+    for ratio in ratios:
+        flt._filled = np.zeros((n, 3))
+        flt.poses = np.zeros((n, 3))
+        flt.poses[:, 2] = ratio * model_sd
+        flt._heading_noise = drawn.copy()
+        flt._adapt_heading_noise()
+        scales.append(flt.heading_noise_scale)
+    return scales
+
+
+def test_one_slip_does_not_reopen_a_narrowed_model():
+    """Good odometry (errors 0.02 x the model) has narrowed the noise to its floor; then one update's match
+    finds a slip of 1.5 x the model's sd (the matcher corrected it). The robust update (clip 3) moves the
+    scale by a bounded step (to 0.25 at most) where the plain running mean of squares reopens the model
+    (to 1, then some 40 updates to narrow again). Errors that stay at the model's size still bring it
+    back to 1 within a dozen updates."""
+    good = [0.02] * 150
+    robust = GSlamFilter(FilterConfig(particles=8), np.zeros(3))
+    plain = GSlamFilter(FilterConfig(particles=8, motion_noise_clip=0.0), np.zeros(3))
+    assert _feed(robust, good)[-1] == pytest.approx(0.2)
+    assert _feed(plain, good)[-1] == pytest.approx(0.2)
+    assert _feed(robust, [1.5])[-1] <= 0.25
+    assert _feed(plain, [1.5])[-1] == pytest.approx(1.0)
+    back = _feed(robust, [1.0] * 15)
+    assert back[-1] == pytest.approx(1.0), back
+    assert back.index(1.0) <= 12, back
