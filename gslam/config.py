@@ -242,9 +242,9 @@ class FilterConfig:
     """Robust update of the learnt heading error: one update's squared error ratio enters the running mean
     at most this squared times the mean (held no lower than the floor's level, (min_scale / safety)^2), as
     a Huber-type estimator does, so that a single slip (an outlier the matcher corrects) does not reopen
-    the model for the next `window` x 2 updates, while errors that stay large still grow the estimate by
-    up to (1 + (clip^2 - 1) / window) per update (floor to full model in about 10 updates). 0: off
-    (the plain running mean of squares)."""
+    the model for the next ~3 x `window` updates (70 on the campus), while errors that stay large still
+    grow the estimate by up to (1 + (clip^2 - 1) / window) per update (floor to full model in about 10
+    updates). 0: off (the plain running mean of squares)."""
     initial_sigma_xy_m: float = 0.0
     """Spread [m, sd] of the particles' initial positions (0: all start at the origin or the GPS fit)."""
     initial_sigma_phi_rad: float = 0.0

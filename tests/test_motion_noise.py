@@ -100,7 +100,7 @@ def test_one_slip_does_not_reopen_a_narrowed_model():
     """Good odometry (errors 0.02 x the model) has narrowed the noise to its floor; then one update's match
     finds a slip of 1.5 x the model's sd (the matcher corrected it). The robust update (clip 3) moves the
     scale by a bounded step (to 0.25 at most) where the plain running mean of squares reopens the model
-    (to 1, then some 40 updates to narrow again). Errors that stay at the model's size still bring it
+    (to 1, then some 60 updates to narrow again). Errors that stay at the model's size still bring it
     back to 1 within a dozen updates."""
     good = [0.02] * 150
     robust = GSlamFilter(FilterConfig(particles=8), np.zeros(3))
