@@ -184,6 +184,10 @@ class FilterConfig:
     """Step halvings before the climb stops (GMapping iterations)."""
     match_max_iterations: int = 100
     """Cap on hill-climbing iterations (each tries 6 moves)."""
+    match_polish_iterations: int = 0
+    """After the climb's `match_levels` step halvings, at most this many Gauss-Newton steps on the same
+    score (`gslam.scanmatch._polish`: iteratively reweighted least squares on the point-to-line and
+    point-to-point residuals): a continuous refinement in place of the climb's finest lattice. 0: none."""
     match_window_margin_m: float = 1.0
     """The matcher rasterises the map points inside the box of the scan's end points (at the motion
     sample) grown by this margin: work local to the scan, whatever the size of the map."""
@@ -333,6 +337,7 @@ _LIMITS: dict[str, tuple[float, float, bool]] = {
     "weight_miss_m": (0, math.inf, False),
     "weight_gain": (0, math.inf, False),
     "match_max_iterations": (1, 10_000, True),
+    "match_polish_iterations": (0, 1_000, True),
     "match_min_score": (0, 1, True),
     "resample_threshold": (0, 1, False),
     "motion_noise_window": (1, 1_000_000, True),

@@ -257,6 +257,7 @@ class GSlamFilter:
             coarse_depth=cfg.match_coarse_depth,
             coarse_gate=cfg.match_coarse_gate,
             coarse_reference=self._fit_reference,
+            polish_iterations=cfg.match_polish_iterations,
         )
         if not climb:
             return 0, log_like
