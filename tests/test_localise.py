@@ -203,3 +203,21 @@ def test_bench_scores_only_where_the_filter_tracks_after_converging():
          math.nan, math.nan, math.nan, 2.0, math.nan, 4.2)], "gslam bench --suite localise", "m", "s"
     )  # fmt: skip
     assert "| intel | global | 0.0 | 0.030 | 0.80 | 100 % | 2.50 | 80 |" in text and "recovered after 4.2 m" in text
+
+
+def test_a_new_place_is_claimed_only_after_it_has_held_over_the_confirmation_travel(field):
+    # `confirm_travel_m` (3 m): the tests must hold over 3 m of travel on one hypothesis before tracking is
+    # claimed; updates that fail them report lost but keep the count; a jump starts the count afresh.
+    loc = MonteCarloLocaliser(field, LocaliseConfig(global_particles=10))
+    at = np.array([0.0, 0.0, 0.0])
+    claims = []
+    for k in range(8):  # 0.5 m per update along x, the tests met except at update 3
+        at = at + [0.5, 0.0, 0.0]
+        claims.append(loc._confirm(at, 0.5, k != 3))
+    # the first update starts the hypothesis (count 0); 0.5 m more per passing update, 3 m after update 7
+    assert claims == [False] * 7 + [True]
+    assert loc._confirm(at + [0.5, 0.0, 0.0], 0.5, True)
+    assert not loc._confirm(at + [20.0, 0.0, 0.0], 0.5, True)  # a jump: another place, not claimed
+    # an initial pose given by the user is confirmed already
+    given = MonteCarloLocaliser(field, LocaliseConfig(initial_particles=10), initial_pose=np.zeros(3))
+    assert given._confirm(np.array([0.2, 0.0, 0.0]), 0.2, True)

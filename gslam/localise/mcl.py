@@ -112,6 +112,16 @@ class LocaliseConfig:
     that the robot had not mapped yet fitted 0.80 to 0.84, a scan of a place the map does not hold fits
     a corridor map at up to 0.7."""
 
+    confirm_travel_m: float = 3.0
+    """A new hypothesis (an estimate that jumped: farther from the last update's than the travel between them
+    plus `cluster_xy_m`, or the first from a global start) is claimed as tracking only once it has met the
+    tests above at its updates over this much travel. Between the updates that meet them the estimate must
+    not jump; updates that fail them report lost but keep the count. An initial pose given by the user is a
+    confirmed hypothesis. A place that looks like another for a few metres no longer passes for it:
+    localising the second half of a log in the map of its first half, claims of tracking more than 0.5 m
+    off were 8 % (mit-csail), 10 % (intel), 16 % (fr079) and 14 % (belgioioso) of the tracked scans, and
+    none with 3 m (2 m: 0.5 % and 2 %). It changes what the filter claims, not its particles."""
+
     def __post_init__(self) -> None:
         check_fields(self, _LIMITS)
         if self.min_particles > self.max_particles:
@@ -135,6 +145,7 @@ _LIMITS = {
     "lost_particles": (0, 10_000_000, True),
     "tracking_weight": (0, 1, True),
     "tracking_fitness": (0, 1, True),
+    "confirm_travel_m": (0, math.inf, True),
 }
 
 
@@ -233,6 +244,10 @@ class MonteCarloLocaliser:
         self._turn_rad = 0.0
         self._last = LocaliseStep(0.0, self.poses[0].copy(), np.eye(3), len(self.poses), False, False, 0.0, 0.0, 0)
         self.updates = 0
+        # The hypothesis the estimate follows (`confirm_travel_m`): its estimate at the last update and the
+        # travel over which it met the tracking tests. The user's initial pose is one already confirmed.
+        self._hypothesis = None if self.initial_pose is None else np.asarray(self.initial_pose, dtype=float).copy()
+        self._confirmed_m = cfg.confirm_travel_m if self.initial_pose is not None else 0.0
 
     # ------------------------------------------------------------------------------------------
     def predict(self, delta: tuple[float, float, float]) -> None:
@@ -253,6 +268,7 @@ class MonteCarloLocaliser:
             last = self._last
             return LocaliseStep(t_s, pose, cov, len(self.poses), False, last.tracking, last.fitness, share, 0,
                                 self._avg.fast, self._avg.slow)  # fmt: skip
+        moved = 0.0 if math.isinf(self._travel_m) else self._travel_m
         self._travel_m = self._turn_rad = 0.0
         self.updates += 1
         ends = np.asarray(ends_sensor, dtype=float)
@@ -271,6 +287,7 @@ class MonteCarloLocaliser:
         best = int(np.argmax(w))
         fitness = float(fit[best])
         tracking = self._tracking(cov, share, fitness)
+        claimed = self._confirm(pose, moved, tracking)
         if not self._averaging:
             # The averages start at the first update that tracks: from a global start the first fits are
             # poor, and a long-term average begun there would take thousands of updates to learn what a
@@ -293,9 +310,20 @@ class MonteCarloLocaliser:
         self.poses = poses
         self.weights = np.full(len(poses), 1.0 / len(poses))
         self._anchor = self._nearest(pose)
-        self._last = LocaliseStep(t_s, pose, cov, len(keep), True, tracking, fitness, share, injected,
+        self._last = LocaliseStep(t_s, pose, cov, len(keep), True, claimed, fitness, share, injected,
                                   avg.fast, avg.slow)  # fmt: skip
         return self._last
+
+    def _confirm(self, pose: np.ndarray, moved_m: float, tracking: bool) -> bool:
+        """Whether to claim tracking at this update (`confirm_travel_m`): `tracking` (the tests of the update)
+        on a hypothesis confirmed over enough travel. `moved_m`: odometry travel since the last update."""
+        previous = self._hypothesis
+        if previous is None or math.hypot(*(pose[:2] - previous[:2])) > moved_m + self.cfg.cluster_xy_m:
+            self._confirmed_m = 0.0  # a jump: another place, to be confirmed afresh
+        elif tracking:
+            self._confirmed_m += moved_m
+        self._hypothesis = pose.copy()
+        return tracking and self._confirmed_m >= self.cfg.confirm_travel_m
 
     # ------------------------------------------------------------------------------------------
     def _nearest(self, pose: np.ndarray) -> int:

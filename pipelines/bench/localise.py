@@ -1,4 +1,5 @@
-"""`gslam bench --suite localise`: localisation in a map G-SLAM built, on the Freiburg logs.
+"""`gslam bench --suite localise`: localisation in a map G-SLAM built, on the corpus of the robustness suite
+(the Freiburg logs with their real odometry, the Radish logs with corrupted odometry).
 
 For each log: `gslam process` (N 30, seed 0) gives the map and the reference trajectory; then
 `gslam localise` (a child process, timed whole, as a user runs it) localises the same log's scans with its
@@ -86,8 +87,9 @@ def _localise_cli(args: list[str]) -> float:
     return _cli("localise", args)
 
 
-def run_localise_bench(inputs: list[Path], progress: Callable[[str], None]) -> list[LocaliseRun]:
-    """`inputs`: ingested MCAPs of logs with odometry (the Freiburg logs)."""
+def run_localise_bench(inputs: list[tuple[str, Path]], progress: Callable[[str], None]) -> list[LocaliseRun]:
+    """`inputs`: (name, ingested MCAP) of logs with odometry (the corpus: the Freiburg logs, the Radish logs
+    with corrupted odometry)."""
     from gslam.localise import LocaliseConfig, MonteCarloLocaliser
     from gslam.motion import odometry_delta
     from pipelines.evaluation.evaluate import read_result
@@ -98,8 +100,7 @@ def run_localise_bench(inputs: list[Path], progress: Callable[[str], None]) -> l
     runs: list[LocaliseRun] = []
     with tempfile.TemporaryDirectory(prefix="gslam-bench-localise-") as tmp:
         work = Path(tmp)
-        for mcap in inputs:
-            name = mcap.stem
+        for name, mcap in inputs:
             log = InputLog(mcap)
             if log.mount is not None:
                 raise RuntimeError(f"{mcap}: the kidnap run takes the laser at the base; this log mounts it off")

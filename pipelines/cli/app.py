@@ -494,6 +494,19 @@ def export(
         typer.echo(f"wrote {path}")
 
 
+def _corpus_logs(logs: str | None, datasets: Path) -> list[str] | None:
+    """The corpus logs `--logs` names (None: all), checked against the corpus; and `--datasets` checked."""
+    from pipelines.bench.corpus import FREIBURG_LOGS, RADISH_LOGS
+
+    only = [name.strip() for name in logs.split(",") if name.strip()] if logs else None
+    unknown = sorted(set(only or []) - set(FREIBURG_LOGS + RADISH_LOGS))
+    if unknown:
+        fail(f"--logs: unknown log(s) {', '.join(unknown)}; the corpus: {', '.join(FREIBURG_LOGS + RADISH_LOGS)}")
+    if not datasets.is_dir():
+        fail(f"--datasets {datasets}: no such directory")
+    return only
+
+
 @app.command()
 @guarded
 def bench(
@@ -537,11 +550,13 @@ def bench(
         ),
     ] = Path("../shared/tools/gmapping"),
     datasets: Annotated[
-        Path, typer.Option("--datasets", help="The datasets directory (robustness suite: the corpus).")
+        Path, typer.Option("--datasets", help="The datasets directory (robustness and localise suites: the corpus).")
     ] = Path("../shared/datasets"),
     logs: Annotated[
         str | None,
-        typer.Option("--logs", help="Robustness suite: comma-separated corpus logs to run (default: all)."),
+        typer.Option(
+            "--logs", help="Robustness and localise suites: comma-separated corpus logs to run (default: all)."
+        ),
     ] = None,
 ) -> None:
     """Benchmarks into docs/BENCHMARKS.md: the paper's Tables 3 and 4 on the Car Park log (beside the paper's
@@ -566,15 +581,9 @@ def bench(
     command = invocation(ctx)
     t0 = time.perf_counter()
     if suite == "robustness":
-        from pipelines.bench.corpus import FREIBURG_LOGS, RADISH_LOGS
         from pipelines.bench.robustness import robustness_section, run_robustness
 
-        only = [name.strip() for name in logs.split(",") if name.strip()] if logs else None
-        unknown = sorted(set(only or []) - set(FREIBURG_LOGS + RADISH_LOGS))
-        if unknown:
-            fail(f"--logs: unknown log(s) {', '.join(unknown)}; the corpus: {', '.join(FREIBURG_LOGS + RADISH_LOGS)}")
-        if not datasets.is_dir():
-            fail(f"--datasets {datasets}: no such directory")
+        only = _corpus_logs(logs, datasets)
         harness = gmapping if (gmapping / "run.sh").exists() else None
         if harness is None:
             typer.echo(f"--gmapping {gmapping}: no run.sh there; GMapping is left out", err=True)
@@ -583,15 +592,21 @@ def bench(
         )
         text = robustness_section(results, command, machine_description(), versions(), 30, 0)
     elif suite == "localise":
+        from pipelines.bench.corpus import FREIBURG_LOGS, RADISH_LOGS, build_corpus
         from pipelines.bench.localise import localise_section, run_localise_bench
         from pipelines.bench.suites import ingest_to
 
-        logs = [freiburg / "mit-csail.clf.gz", freiburg / "intel.clf.gz"]
-        for log in logs:
-            if not log.exists():
-                fail(f"--freiburg {freiburg}: {log.name} not found")
+        only = _corpus_logs(logs, datasets)
         with tempfile.TemporaryDirectory(prefix="gslam-bench-localise-in-") as tmp:
-            inputs = [ingest_to(log, Path(tmp)) for log in logs]
+            # the corpus of the robustness suite: the Freiburg logs (real odometry) and the Radish logs with
+            # odometry corrupted (odometry seed 0)
+            corpus = [c for c in build_corpus(datasets, Path(tmp), 0) if only is None or c.name in only]
+            missing = sorted(set(only or FREIBURG_LOGS + RADISH_LOGS) - {c.name for c in corpus})
+            if missing:
+                typer.echo(f"--datasets {datasets}: {', '.join(missing)} not found; left out", err=True)
+            if not corpus:
+                fail(f"--datasets {datasets}: no corpus log found")
+            inputs = [(c.name, ingest_to(c.log, Path(tmp))) for c in corpus]
             runs = run_localise_bench(inputs, lambda s: typer.echo(s, err=True))
         text = localise_section(runs, command, machine_description(), versions())
     elif suite != "carpark":
