@@ -179,6 +179,8 @@ def localise_section(runs: list[LocaliseRun], command: str, machine: str, softwa
         f"- Machine: {machine}",
         f"- Software: {software}",
         f"- Date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}",
+        "- Logs: the robustness suite's corpus, the Freiburg logs with their odometry and the Radish logs with",
+        "  odometry corrupted (odometry seed 0).",
         "- Map and reference: `gslam process` (N 30, seed 0) on the same log; `gslam localise` with the defaults",
         "  (seed 0) on the log's scans and raw odometry. Error: against the SLAM trajectory at the scans where",
         "  the filter says it tracks, after it first does. Wrong start: 1.5 m and 60 deg off, spread 0.1 m /",
