@@ -97,19 +97,29 @@ def _nearest_two(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy):
 
 
 @njit(cache=True, inline="always")
-def _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2):
-    """(squared distance from (ex, ey) to the map, True when it is taken across the line through the two
-    nearest usable cell means) or (-1, False) when no usable cell is found."""
-    best, second, k1, k2 = _nearest_two(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy)
+def _surface_line(second, k1, k2, mean_xy, pair_d2):
+    """(tx, ty, t2): the direction from cell mean k1 to k2 and its squared length, when a return is scored
+    point to line: the two nearest means, when close enough to be neighbouring samples of one surface
+    (within sqrt(pair_d2)), define its local direction and the distance is taken across it (PL-ICP, Censi
+    2008). t2 = 0: scored point to point (no second mean, pairs off, or the two too far apart)."""
     if pair_d2 > 0.0 and second >= 0.0:
-        # point to line: the two nearest means, when close enough to be neighbouring samples of one
-        # surface, define its local direction; the distance is taken across it (PL-ICP, Censi 2008)
         tx = mean_xy[k2, 0] - mean_xy[k1, 0]
         ty = mean_xy[k2, 1] - mean_xy[k1, 1]
         t2 = tx * tx + ty * ty
         if 0.0 < t2 <= pair_d2:
-            cross = (ex - mean_xy[k1, 0]) * ty - (ey - mean_xy[k1, 1]) * tx
-            return cross * cross / t2, True
+            return tx, ty, t2
+    return 0.0, 0.0, 0.0
+
+
+@njit(cache=True, inline="always")
+def _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2):
+    """(squared distance from (ex, ey) to the map, True when it is taken across the line through the two
+    nearest usable cell means) or (-1, False) when no usable cell is found."""
+    best, second, k1, k2 = _nearest_two(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy)
+    tx, ty, t2 = _surface_line(second, k1, k2, mean_xy, pair_d2)
+    if t2 > 0.0:
+        cross = (ex - mean_xy[k1, 0]) * ty - (ey - mean_xy[k1, 1]) * tx
+        return cross * cross / t2, True
     return best, False
 
 
@@ -379,28 +389,23 @@ def _polish(pose, current, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mea
             best, second, k1, k2 = _nearest_two(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy)
             if best < 0.0:
                 continue
-            line = False
-            if pair_d2 > 0.0 and second >= 0.0:
-                tx = mean_xy[k2, 0] - mean_xy[k1, 0]
-                ty = mean_xy[k2, 1] - mean_xy[k1, 1]
-                t2 = tx * tx + ty * ty
-                if 0.0 < t2 <= pair_d2:
-                    inv_t = 1.0 / math.sqrt(t2)
-                    nxv, nyv = ty * inv_t, -tx * inv_t  # the line's unit normal
-                    d = (ex - mean_xy[k1, 0]) * nxv + (ey - mean_xy[k1, 1]) * nyv
-                    om = inv_line * math.exp(-inv_line * d * d)
-                    j2 = -ay * nxv + ax * nyv
-                    h00 += om * nxv * nxv
-                    h01 += om * nxv * nyv
-                    h02 += om * nxv * j2
-                    h11 += om * nyv * nyv
-                    h12 += om * nyv * j2
-                    h22 += om * j2 * j2
-                    g0 += om * nxv * d
-                    g1 += om * nyv * d
-                    g2 += om * j2 * d
-                    line = True
-            if not line:
+            tx, ty, t2 = _surface_line(second, k1, k2, mean_xy, pair_d2)
+            if t2 > 0.0:
+                inv_t = 1.0 / math.sqrt(t2)
+                nxv, nyv = ty * inv_t, -tx * inv_t  # the line's unit normal
+                d = (ex - mean_xy[k1, 0]) * nxv + (ey - mean_xy[k1, 1]) * nyv
+                om = inv_line * math.exp(-inv_line * d * d)
+                j2 = -ay * nxv + ax * nyv
+                h00 += om * nxv * nxv
+                h01 += om * nxv * nyv
+                h02 += om * nxv * j2
+                h11 += om * nyv * nyv
+                h12 += om * nyv * j2
+                h22 += om * j2 * j2
+                g0 += om * nxv * d
+                g1 += om * nyv * d
+                g2 += om * j2 * d
+            else:
                 rx = ex - mean_xy[k1, 0]
                 ry = ey - mean_xy[k1, 1]
                 om = score_inv[j] * math.exp(-score_inv[j] * (rx * rx + ry * ry))
