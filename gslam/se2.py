@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from gslam.motion import wrap_angle
@@ -29,3 +31,13 @@ def inverse(a: np.ndarray) -> np.ndarray:
         [-c * a[..., 0] - s * a[..., 1], s * a[..., 0] - c * a[..., 1], wrap_angle(-a[..., 2])],
         axis=-1,
     )
+
+
+def compose_inverse(a: tuple[float, float, float], b: tuple[float, float, float]) -> tuple[float, float, float]:
+    """a (+) b^-1 for one pose each, in Python floats: `compose(a, inverse(b))` without numpy's per-call
+    cost (a writer computes it at every scan: map -> odom is the SLAM pose (+) the odometry pose^-1)."""
+    ca, sa = math.cos(a[2]), math.sin(a[2])
+    cb, sb = math.cos(b[2]), math.sin(b[2])
+    ix, iy = -cb * b[0] - sb * b[1], sb * b[0] - cb * b[1]
+    phi = (a[2] - b[2] + math.pi) % (2 * math.pi) - math.pi
+    return a[0] + ca * ix - sa * iy, a[1] + sa * ix + ca * iy, phi

@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gslam.motion import apply_odometry, odometry_delta
-from gslam.se2 import compose, inverse
+from gslam.se2 import compose, compose_inverse, inverse
 from ingest.textlog import IngestError
 from ingest.tf import FrameTree, Transform, planar_mount, quaternion_matrix
 from pipelines.run.mount import LaserMount
@@ -26,6 +26,15 @@ pose = st.tuples(st.floats(-50, 50), st.floats(-50, 50), st.floats(-math.pi, mat
 def test_composition_is_associative_with_an_inverse(a, b, c):
     np.testing.assert_allclose(compose(compose(a, b), c), compose(a, compose(b, c)), atol=1e-9)
     np.testing.assert_allclose(compose(a, inverse(a)), np.zeros(3), atol=1e-9)
+
+
+@settings(max_examples=60, deadline=None)
+@given(pose, pose)
+def test_compose_inverse_of_one_pose_is_the_array_formula(a, b):
+    got = np.array(compose_inverse(tuple(a), tuple(b)))
+    want = compose(a, inverse(b))
+    np.testing.assert_allclose(got[:2], want[:2], atol=1e-9)
+    assert abs((got[2] - want[2] + math.pi) % (2 * math.pi) - math.pi) < 1e-12
 
 
 def test_compose_by_hand():

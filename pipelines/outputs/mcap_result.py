@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from gslam.filter import SlamFilter
-from gslam.se2 import compose, inverse
+from gslam.se2 import compose_inverse
 from mcaplog import channels as ch
 from mcaplog.mcapio import AtomicMcapWriter, to_ns
 from pipelines.outputs.writer import RunEnd, RunStart
@@ -136,11 +136,11 @@ class McapResultWriter:
         the SLAM correction (the best base pose composed with the odometry's inverse), odom -> base_link
         the input's odometry, base_link -> laser the mount. Logs of controls (no odometry pose) give
         map -> base_link directly."""
-        best = np.asarray(st.result.best_pose[:3], dtype=float)
+        best = tuple(float(v) for v in st.result.best_pose[:3])
         t = st.event.stamp_s
         if st.odom_pose is not None:
-            odom = np.asarray(st.odom_pose[:3], dtype=float)
-            correction = compose(best, inverse(odom))
+            odom = tuple(float(v) for v in st.odom_pose[:3])
+            correction = compose_inverse(best, odom)
             links = [(ch.MAP_FRAME, ch.ODOM_FRAME, *correction), (ch.ODOM_FRAME, ch.BASE_FRAME, *odom)]
         else:
             links = [(ch.MAP_FRAME, ch.BASE_FRAME, *best)]
