@@ -102,8 +102,9 @@ class FilterConfig:
     """matched_field: the log-likelihood is divided by weight_gain x N before it multiplies the weight
     (GMapping's observation gain, ogain = 3): returns are far from independent, and the division
     keeps the effective sample size from collapsing at every update."""
-    weight_beam_stride: int = 2
-    """Use every k-th return in the weight and the scan matcher."""
+    weight_beam_stride: int = 1
+    """Use every k-th return in the weight and the scan matcher's score (1: every return, as GMapping). The
+    matcher's climb thins them further (match_climb_stride); its Gauss-Newton finish uses them all."""
 
     # Open point 5: prior of new points.
     prior_interpolation: PriorInterpolation = "cell_mean"
@@ -158,8 +159,8 @@ class FilterConfig:
     """Levels of the coarse start's pyramid, each match_coarse_factor times coarser than the one below: the
     climb starts on the coarsest from the motion sample and descends (1: one level, 0.2 m cells)."""
     match_coarse_stride: int = 1
-    """The coarse climb uses every k-th of the matcher's returns (1: all). Every 2nd was cheaper by little
-    and broke a loop on the Freiburg campus (docs/CHOICES.md)."""
+    """The coarse climb uses every k-th of the climb's returns (1: all of them). Every 2nd was cheaper by
+    little and broke a loop on the Freiburg campus (docs/CHOICES.md)."""
     match_coarse_min_gain: float = 0.05
     """The coarse start's match replaces the fine climb's only when its score is higher by this fraction of
     the returns. Where a scan has few returns (68 at the Car Park's first updates), two poses half a metre
@@ -184,10 +185,16 @@ class FilterConfig:
     """Step halvings before the climb stops (GMapping iterations)."""
     match_max_iterations: int = 100
     """Cap on hill-climbing iterations (each tries 6 moves)."""
-    match_polish_iterations: int = 0
-    """After the climb's `match_levels` step halvings, at most this many Gauss-Newton steps on the same
-    score (`gslam.scanmatch._polish`: iteratively reweighted least squares on the point-to-line and
-    point-to-point residuals): a continuous refinement in place of the climb's finest lattice. 0: none."""
+    match_climb_stride: int = 2
+    """The climb scores every k-th of the matcher's returns: enough to find the basin and walk the lattice of
+    poses; the Gauss-Newton finish (match_polish_iterations), the score it reports and the weight use every
+    return. On the corpus the finish on all returns after a climb on every second one was as accurate as
+    the climb on all of them, at the cost of the climb on half (docs/CHOICES.md). 1: the climb on all."""
+    match_polish_iterations: int = 5
+    """After the climb's `match_levels` step halvings, at most this many Gauss-Newton steps on the score over
+    all the returns (`gslam.scanmatch._polish`: iteratively reweighted least squares on the point-to-line
+    and point-to-point residuals, a step kept only if the score rises): a continuous refinement of the
+    climb's lattice pose with every return. 0: none."""
     match_window_margin_m: float = 1.0
     """The matcher rasterises the map points inside the box of the scan's end points (at the motion
     sample) grown by this margin: work local to the scan, whatever the size of the map."""
@@ -338,6 +345,7 @@ _LIMITS: dict[str, tuple[float, float, bool]] = {
     "weight_gain": (0, math.inf, False),
     "match_max_iterations": (1, 10_000, True),
     "match_polish_iterations": (0, 1_000, True),
+    "match_climb_stride": (1, 10_000, True),
     "match_min_score": (0, 1, True),
     "resample_threshold": (0, 1, False),
     "motion_noise_window": (1, 1_000_000, True),

@@ -258,6 +258,7 @@ class GSlamFilter:
             coarse_gate=cfg.match_coarse_gate,
             coarse_reference=self._fit_reference,
             polish_iterations=cfg.match_polish_iterations,
+            climb_stride=cfg.match_climb_stride,
         )
         if not climb:
             return 0, log_like

@@ -438,11 +438,16 @@ def _polish(pose, current, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mea
 
 
 @njit(cache=True)
-def _fine_climb(pose, ends, dirs, score_inv, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, match):
-    """The fine climb from `pose` (in place), with the steps and levels of `match`, then match[11]
-    Gauss-Newton steps (`_polish`, to within match[12] m and rad); returns its score."""
-    current = _climb(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, match[7], match[4],
-                     match[0], match[1], int(match[2]), int(match[3]))  # fmt: skip
+def _fine_climb(pose, climb_ends, climb_dirs, climb_inv, ends, dirs, score_inv, x0, y0, nx, ny, cell_m, kernel,
+                grid, mean_xy, match):  # fmt: skip
+    """The fine climb from `pose` (in place) on the returns `climb_ends` (every match_climb_stride-th of `ends`),
+    with the steps and levels of `match`, then match[11] Gauss-Newton steps on all of `ends` (`_polish`,
+    to within match[12] m and rad); returns the score over all of `ends`."""
+    current = _climb(pose, climb_ends, climb_dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, climb_inv, match[7],
+                     match[4], match[0], match[1], int(match[2]), int(match[3]))  # fmt: skip
+    if climb_ends.shape[0] != ends.shape[0]:
+        current = _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, match[7],
+                         match[4], -np.inf)  # fmt: skip
     if match[11] > 0:
         current = _polish(pose, current, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv,
                           match[7], match[4], int(match[11]), match[12], match[12])  # fmt: skip
@@ -462,8 +467,8 @@ def _weigh(i, pose, current, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, m
 
 
 @njit(cache=True)
-def _match_one(i, map_xy, map_p, lo, hi, pose0, ends, dirs, score_inv, window, cell_m, kernel, min_p, match,
-               grid, sums, touched, out):  # fmt: skip
+def _match_one(i, map_xy, map_p, lo, hi, pose0, climb_ends, climb_dirs, climb_inv, ends, dirs, score_inv, window,
+               cell_m, kernel, min_p, match, grid, sums, touched, out):  # fmt: skip
     """Rasterise particle i's window of its map, climb the score from the motion sample, weigh the scan
     there; reset the raster."""
     x0, y0 = window[0], window[1]
@@ -472,16 +477,17 @@ def _match_one(i, map_xy, map_p, lo, hi, pose0, ends, dirs, score_inv, window, c
     used = _rasterise(map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched)
     current = 0.0
     if used:
-        current = _fine_climb(pose, ends, dirs, score_inv, x0, y0, nx, ny, cell_m, kernel, grid, sums, match)
+        current = _fine_climb(pose, climb_ends, climb_dirs, climb_inv, ends, dirs, score_inv, x0, y0, nx, ny, cell_m,
+                              kernel, grid, sums, match)  # fmt: skip
     _weigh(i, pose, current, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, sums, match, out)
     for slot in range(used):
         grid[touched[slot]] = _EMPTY
 
 
 @njit(cache=True)
-def _coarse_start_one(i, map_xy, map_p, lo, hi, pose0, ends, dirs, score_inv, coarse_ends, coarse_dirs,
-                      coarse_inv, window, cell_m, kernel, min_p, match, grid, sums, touched, coarse_grid,
-                      coarse_sums, coarse_touched, out):  # fmt: skip
+def _coarse_start_one(i, map_xy, map_p, lo, hi, pose0, climb_ends, climb_dirs, climb_inv, ends, dirs, score_inv,
+                      coarse_ends, coarse_dirs, coarse_inv, window, cell_m, kernel, min_p, match, grid, sums, touched,
+                      coarse_grid, coarse_sums, coarse_touched, out):  # fmt: skip
     """The second start, coarse to fine, for particle i whose fine match is in out[i]: climb from the
     motion sample down a pyramid of rasters, each match[8] times coarser than the one below
     (coarse_sums.shape[0] levels; on each, every width, reach and step scaled by its factor, so a
@@ -529,7 +535,8 @@ def _coarse_start_one(i, map_xy, map_p, lo, hi, pose0, ends, dirs, score_inv, co
         cc = cell_m * factor
         dx, dy = second[0] - out[i, 0], second[1] - out[i, 1]
         if dx * dx + dy * dy > cc * cc or abs(second[2] - out[i, 2]) > 0.5 * factor * match[1]:
-            score2 = _fine_climb(second, ends, dirs, score_inv, x0, y0, nx, ny, cell_m, kernel, grid, sums, match)
+            score2 = _fine_climb(second, climb_ends, climb_dirs, climb_inv, ends, dirs, score_inv, x0, y0, nx, ny,
+                                 cell_m, kernel, grid, sums, match)  # fmt: skip
             if score2 > out[i, 3] + match[10] * ends.shape[0]:
                 _weigh(i, second, score2, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, sums, match, out)
     for slot in range(used):
@@ -540,8 +547,8 @@ def _coarse_start_one(i, map_xy, map_p, lo, hi, pose0, ends, dirs, score_inv, co
 
 
 @njit(cache=True, parallel=True, nogil=True)
-def _match_all(map_xy, map_p, lo, hi, poses, ends, dirs, score_inv, windows, cell_m, kernel, min_p, match,
-               grids, sums, touched):  # fmt: skip
+def _match_all(map_xy, map_p, lo, hi, poses, climb_ends, climb_dirs, climb_inv, ends, dirs, score_inv, windows,
+               cell_m, kernel, min_p, match, grids, sums, touched):  # fmt: skip
     """_match_one for every particle, spread over the workers (one raster each)."""
     n = poses.shape[0]
     out = np.empty((n, 6))
@@ -551,15 +558,16 @@ def _match_all(map_xy, map_p, lo, hi, poses, ends, dirs, score_inv, windows, cel
             i = next_index(counter)  # the next particle not taken (gslam.workqueue)
             if i >= n:
                 break
-            _match_one(i, map_xy, map_p, lo[i], hi[i], poses[i], ends, dirs, score_inv, windows[i], cell_m, kernel,
-                       min_p, match, grids[w], sums[w], touched[w], out)  # fmt: skip
+            _match_one(i, map_xy, map_p, lo[i], hi[i], poses[i], climb_ends, climb_dirs, climb_inv, ends, dirs,
+                       score_inv, windows[i], cell_m, kernel, min_p, match, grids[w], sums[w], touched[w],
+                       out)  # fmt: skip
     return out
 
 
 @njit(cache=True, parallel=True, nogil=True)
-def _coarse_start_all(chosen, map_xy, map_p, lo, hi, poses, ends, dirs, score_inv, coarse_ends, coarse_dirs,
-                      coarse_inv, windows, cell_m, kernel, min_p, match, grids, sums, touched, coarse_grids,
-                      coarse_sums, coarse_touched, out):  # fmt: skip
+def _coarse_start_all(chosen, map_xy, map_p, lo, hi, poses, climb_ends, climb_dirs, climb_inv, ends, dirs,
+                      score_inv, coarse_ends, coarse_dirs, coarse_inv, windows, cell_m, kernel, min_p, match, grids,
+                      sums, touched, coarse_grids, coarse_sums, coarse_touched, out):  # fmt: skip
     """_coarse_start_one for the particles `chosen`, spread over the workers; updates `out` in place."""
     counter = np.zeros(1, dtype=np.int64)
     for w in prange(grids.shape[0]):
@@ -568,9 +576,10 @@ def _coarse_start_all(chosen, map_xy, map_p, lo, hi, poses, ends, dirs, score_in
             if k >= chosen.shape[0]:
                 break
             i = chosen[k]
-            _coarse_start_one(i, map_xy, map_p, lo[i], hi[i], poses[i], ends, dirs, score_inv, coarse_ends,
-                              coarse_dirs, coarse_inv, windows[i], cell_m, kernel, min_p, match, grids[w], sums[w],
-                              touched[w], coarse_grids[w], coarse_sums[w], coarse_touched[w], out)  # fmt: skip
+            _coarse_start_one(i, map_xy, map_p, lo[i], hi[i], poses[i], climb_ends, climb_dirs, climb_inv, ends, dirs,
+                              score_inv, coarse_ends, coarse_dirs, coarse_inv, windows[i], cell_m, kernel, min_p, match,
+                              grids[w], sums[w], touched[w], coarse_grids[w], coarse_sums[w], coarse_touched[w],
+                              out)  # fmt: skip
 
 
 class MatchWorkspace:
@@ -632,6 +641,7 @@ def match_and_weigh(
     coarse_reference: float = 0.0,
     polish_iterations: int = 0,
     polish_tolerance: float = 1e-4,
+    climb_stride: int = 1,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Match the scan end points `ends_sensor` (K, 2) against each particle's map and weigh it there.
 
@@ -639,13 +649,15 @@ def match_and_weigh(
     every return point to point. `coarse_factor` > 1: a second start, climbed from the motion sample on a
     raster that many times coarser (cells, widths, steps, line pairs all scaled; `coarse_depth` levels,
     each `coarse_factor` times coarser than the one below, climbed from the coarsest down), `coarse_levels`
-    step halvings on each, on every `coarse_stride`-th return; where it ends more than a coarse cell (or factor / 2
-    angular steps) from the fine climb's result it is climbed on the fine raster too, and replaces that
+    step halvings on each, on every `coarse_stride`-th of the climb's returns; where it ends more than a
+    coarse cell (or factor / 2 angular steps) from the fine climb's result it is climbed on the fine
+    raster too, and replaces that
     result when it scores `coarse_min_gain` x the returns higher. The second start is tried only for the
     particles whose fine fit (score / returns) is at most `coarse_gate` x the reference fit: the best fine
     fit among the particles, or `coarse_reference` if higher (the filter passes the median fit of its
     previous update, so a slip that takes every particle out of the fine climb's basin is still caught);
-    above 1: every particle. Returns (matched
+    above 1: every particle. `climb_stride` k > 1: the climbs score every k-th return; the Gauss-Newton
+    finish (`polish_iterations`), the scores returned and the weight use all. Returns (matched
     poses (N, 3), score at the matched pose (N,), log-likelihood there (N,), returns that found an
     occupied cell near their end point (N,)).
     """
@@ -691,7 +703,9 @@ def match_and_weigh(
     lo = np.asarray(map_lo, dtype=np.int64)
     hi = np.asarray(map_hi, dtype=np.int64)
     grids = (workspace.grids, workspace.sums, workspace.touched)
-    out = _match_all(map_xy, map_p, lo, hi, poses, ends, dirs, score_inv, windows, float(cell_m), int(kernel),
+    k = max(1, int(climb_stride))
+    climb = (ends, dirs, score_inv) if k == 1 else tuple(np.ascontiguousarray(a[::k]) for a in (ends, dirs, score_inv))
+    out = _match_all(map_xy, map_p, lo, hi, poses, *climb, ends, dirs, score_inv, windows, float(cell_m), int(kernel),
                      float(min_p), match, *grids)  # fmt: skip
     if f > 1 and max_iterations > 0:
         fit = out[:, 3] / len(ends)
@@ -700,9 +714,8 @@ def match_and_weigh(
         if len(chosen):
             stride = max(1, int(coarse_stride))
             _coarse_start_all(
-                chosen, map_xy, map_p, lo, hi, poses, ends, dirs, score_inv,
-                np.ascontiguousarray(ends[::stride]), np.ascontiguousarray(dirs[::stride]),
-                np.ascontiguousarray(score_inv[::stride]), windows, float(cell_m), int(kernel), float(min_p),
+                chosen, map_xy, map_p, lo, hi, poses, *climb, ends, dirs, score_inv,
+                *(np.ascontiguousarray(a[::stride]) for a in climb), windows, float(cell_m), int(kernel), float(min_p),
                 match, *grids, workspace.coarse_grids, workspace.coarse_sums, workspace.coarse_touched, out,
             )  # fmt: skip
     return out[:, :3].copy(), out[:, 3].copy(), out[:, 4].copy(), out[:, 5].astype(np.int64)

@@ -229,6 +229,17 @@ def test_matcher_options_are_validated():
         FilterConfig(match_sigma_m=0.0)
     with pytest.raises(ValueError, match="match_polish_iterations"):
         FilterConfig(match_polish_iterations=-1)
+    with pytest.raises(ValueError, match="match_climb_stride"):
+        FilterConfig(match_climb_stride=0)
+
+
+def _room_and_two_starts(seed: int):
+    """The room (its scatter drawn from `seed`) as a map, the true pose, the scan from there and two motion
+    samples a few centimetres and a degree or so off it."""
+    world = _room(np.random.default_rng(seed))
+    truth = np.array([1.0, 0.5, 0.2])
+    start = truth + np.array([[0.08, -0.06, math.radians(1.5)], [-0.07, 0.05, math.radians(-1.0)]])
+    return PointMap(world, np.full(len(world), 0.9)), truth, _scan_points(world, truth), start
 
 
 def test_gauss_newton_polish_refines_the_climb_to_the_truth():
@@ -236,11 +247,7 @@ def test_gauss_newton_polish_refines_the_climb_to_the_truth():
     # same score (match_polish_iterations) take it from there to the optimum: a higher score, and on this
     # room (1 cm of scatter on its points) within 1 cm and 0.05 deg of the truth (the full climb of five
     # halvings: 1.4 and 1.6 cm, 0.07 and 0.1 deg).
-    world = _room(np.random.default_rng(0))
-    m = PointMap(world, np.full(len(world), 0.9))
-    truth = np.array([1.0, 0.5, 0.2])
-    pts = _scan_points(world, truth)
-    start = truth + np.array([[0.08, -0.06, math.radians(1.5)], [-0.07, 0.05, math.radians(-1.0)]])
+    m, truth, pts, start = _room_and_two_starts(0)
     coarse, coarse_score, _, _ = _match([m, m], start, pts, levels=2)
     out, score, _, hits = _match([m, m], start, pts, levels=2, polish_iterations=5)
     full, full_score, _, _ = _match([m, m], start, pts)
@@ -250,6 +257,25 @@ def test_gauss_newton_polish_refines_the_climb_to_the_truth():
         assert np.hypot(*(out[i, :2] - truth[:2])) < 0.01, out[i]
         assert abs(out[i, 2] - truth[2]) < math.radians(0.05)
         assert np.hypot(*(out[i, :2] - truth[:2])) < np.hypot(*(coarse[i, :2] - truth[:2]))
+
+
+def test_climb_on_every_second_return_then_the_finish_on_all():
+    # match_climb_stride 2: the climb walks on every second return, exactly as a climb given only those;
+    # the score it reports, and the Gauss-Newton finish after it, are over all the returns.
+    m, truth, pts, start = _room_and_two_starts(2)
+    half, _, _, _ = _match([m, m], start, pts[::2])
+    out, score, _, _ = _match([m, m], start, pts, climb_stride=2)
+    np.testing.assert_array_equal(out, half)
+    # With no climbing step the pose stays and the score is the same as scoring every return there.
+    _, still, _, _ = _match([m, m], start, pts, climb_stride=2, max_iterations=0)
+    _, all_returns, _, _ = _match([m, m], start, pts, max_iterations=0)
+    np.testing.assert_array_equal(still, all_returns)
+    assert np.all(score > all_returns)
+    finished, finished_score, _, _ = _match([m, m], start, pts, climb_stride=2, polish_iterations=5)
+    for i in range(2):
+        assert finished_score[i] >= score[i]
+        assert np.hypot(*(finished[i, :2] - truth[:2])) < 0.01, finished[i]
+        assert abs(finished[i, 2] - truth[2]) < math.radians(0.05)
 
 
 def test_gauss_newton_polish_leaves_a_pose_without_map_alone():
