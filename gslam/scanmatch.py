@@ -610,6 +610,13 @@ class MatchWorkspace:
             self.coarse_touched = np.empty((self.workers, depth, size), dtype=np.int64)
 
 
+def _every(stride: int, arrays: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
+    """Every `stride`-th row of each of `arrays` (the returns a climb scores), contiguous for the compiled
+    loops; the arrays themselves for a stride of 1."""
+    k = max(1, int(stride))
+    return arrays if k == 1 else tuple(np.ascontiguousarray(a[::k]) for a in arrays)
+
+
 def match_and_weigh(
     map_xy: np.ndarray,
     map_p: np.ndarray,
@@ -703,8 +710,7 @@ def match_and_weigh(
     lo = np.asarray(map_lo, dtype=np.int64)
     hi = np.asarray(map_hi, dtype=np.int64)
     grids = (workspace.grids, workspace.sums, workspace.touched)
-    k = max(1, int(climb_stride))
-    climb = (ends, dirs, score_inv) if k == 1 else tuple(np.ascontiguousarray(a[::k]) for a in (ends, dirs, score_inv))
+    climb = _every(climb_stride, (ends, dirs, score_inv))
     out = _match_all(map_xy, map_p, lo, hi, poses, *climb, ends, dirs, score_inv, windows, float(cell_m), int(kernel),
                      float(min_p), match, *grids)  # fmt: skip
     if f > 1 and max_iterations > 0:
@@ -712,10 +718,9 @@ def match_and_weigh(
         reference = max(float(fit.max()), float(coarse_reference))
         chosen = np.flatnonzero(fit <= coarse_gate * reference).astype(np.int64)
         if len(chosen):
-            stride = max(1, int(coarse_stride))
             _coarse_start_all(
                 chosen, map_xy, map_p, lo, hi, poses, *climb, ends, dirs, score_inv,
-                *(np.ascontiguousarray(a[::stride]) for a in climb), windows, float(cell_m), int(kernel), float(min_p),
+                *_every(coarse_stride, climb), windows, float(cell_m), int(kernel), float(min_p),
                 match, *grids, workspace.coarse_grids, workspace.coarse_sums, workspace.coarse_touched, out,
             )  # fmt: skip
     return out[:, :3].copy(), out[:, 3].copy(), out[:, 4].copy(), out[:, 5].astype(np.int64)

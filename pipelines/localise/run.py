@@ -24,7 +24,7 @@ from gslam import __version__
 from gslam.localise import LocaliseConfig, LocaliseStep, MonteCarloLocaliser
 from gslam.motion import odometry_delta
 from gslam.scan import Scan
-from gslam.se2 import compose, inverse
+from gslam.se2 import compose_inverse
 from mcaplog import channels as ch
 from mcaplog.mcapio import AtomicMcapWriter, to_ns
 from mcaplog.tempfiles import create_temporary
@@ -304,7 +304,7 @@ def _write_step(out, t_s: float, st: LocaliseStep, base: np.ndarray, odom: np.nd
         "step_ms": step_ms,
     }
     out.write_json(STATE, "gslam.LocaliseState", STATE_SCHEMA, state, ns)
-    map_to_odom = compose(base, inverse(odom))
+    map_to_odom = compose_inverse(tuple(float(v) for v in base), tuple(float(v) for v in odom))
     links = [(ch.MAP_FRAME, ch.ODOM_FRAME, *map_to_odom), (ch.ODOM_FRAME, ch.BASE_FRAME, *odom)]
     if mount is not None:
         links.append((ch.BASE_FRAME, ch.LASER_FRAME, *mount.pose))
