@@ -61,8 +61,9 @@ def _nearer(ex, ey, k, mean_xy, best, second, k1, k2):
 def _nearest_two(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy):
     """The two nearest usable cell means to (ex, ey) (beam direction (ux, uy)): (best, second, k1, k2),
     squared distances best <= second of cells k1, k2; -1 for none found."""
-    cx = int(math.floor((ex - x0) / cell_m))
-    cy = int(math.floor((ey - y0) / cell_m))
+    inv = 1.0 / cell_m  # hoisted out of the loops by the compiler: a multiplication per return, not a division
+    cx = int(math.floor((ex - x0) * inv))
+    cy = int(math.floor((ey - y0) * inv))
     fx = -int(math.floor(ux * 1.41421356 + 0.5))  # one cell back towards the sensor
     fy = -int(math.floor(uy * 1.41421356 + 0.5))
     best = -1.0
@@ -154,21 +155,6 @@ def _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, inv_
         if d2 >= 0.0:
             total += math.exp(-d2 * (inv_line if line else inv_2s2[j]))
     return total
-
-
-@njit(cache=True)
-def _log_likelihood(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, inv_2s2, miss_d2, pair_d2):
-    c, s = math.cos(pose[2]), math.sin(pose[2])
-    total = 0.0
-    hits = 0
-    for j in range(ends.shape[0]):
-        d2, _ = _return_d2(pose, c, s, ends, dirs, j, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2)
-        if d2 >= 0.0:
-            hits += 1
-            total -= min(d2, miss_d2) * inv_2s2
-        else:
-            total -= miss_d2 * inv_2s2
-    return total, hits
 
 
 @njit(cache=True, inline="always")
@@ -361,109 +347,138 @@ def _solve3(h00, h01, h02, h11, h12, h22, g0, g1, g2, out):
 
 
 @njit(cache=True)
-def _polish(pose, current, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line,
-            iterations, tol_xy, tol_phi):  # fmt: skip
-    """Gauss-Newton steps on the score from `pose` (in place), whose score is `current`; returns the score.
+def _pass(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line, like_inv,
+          miss_d2, normal):  # fmt: skip
+    """One pass over the returns at `pose`: (score, log-likelihood, hits), and the Gauss-Newton normal
+    equations of the score there in `normal` (h00, h01, h02, h11, h12, h22, g0, g1, g2).
 
-    The score sum_j exp(-w_j d_j^2) is maximised by iteratively reweighted least squares (its stationary
-    points are those of sum_j omega_j d_j^2 with omega_j = w_j exp(-w_j d_j^2) held fixed, Welsch's
-    M-estimator): each return's residual is linearised in (x, y, phi), across the line through its two
-    nearest cell means (d_j = n . (e_j - m), PL-ICP, Censi 2008) or to the nearest mean (a 2-D residual),
-    the normal equations are solved, and the step is kept if the score rises (else it is halved, up to
-    twice). Stops when a step is below (tol_xy, tol_phi), no step raises the score, or after
-    `iterations`. A continuous refinement where the climb's last step halvings probe a lattice of poses:
-    the same optimum in a few passes over the returns instead of some fifty."""
+    The score is `_score`'s sum, term for term in the same order. The log-likelihood is sum_j -min(d_j^2,
+    miss_d2) like_inv, a return with no usable cell near it counting miss_d2 (GMapping's
+    `nullLikelihood`); hits counts the others. The normal equations are those of iteratively reweighted
+    least squares on the score (its stationary points are those of sum_j omega_j d_j^2 with
+    omega_j = w_j exp(-w_j d_j^2) held fixed, Welsch's M-estimator): each return's residual linearised in
+    (x, y, phi), across the line through its two nearest cell means (d_j = n . (e_j - m), PL-ICP, Censi
+    2008) or to the nearest mean (a 2-D residual). Each return's cells are searched once for all three."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    h00 = h01 = h02 = h11 = h12 = h22 = 0.0
+    g0 = g1 = g2 = 0.0
+    total = 0.0
+    like = 0.0
+    hits = 0
+    for j in range(ends.shape[0]):
+        lx, ly = ends[j, 0], ends[j, 1]
+        ex = pose[0] + c * lx - s * ly  # as `_return_d2`, so that the score and the weight are its own
+        ey = pose[1] + s * lx + c * ly
+        ax = c * lx - s * ly  # the end point relative to the pose: d e / d phi = (-ay, ax)
+        ay = s * lx + c * ly
+        ux = c * dirs[j, 0] - s * dirs[j, 1]
+        uy = s * dirs[j, 0] + c * dirs[j, 1]
+        best, second, k1, k2 = _nearest_two(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy)
+        if best < 0.0:
+            like -= miss_d2 * like_inv
+            continue
+        hits += 1
+        tx, ty, t2 = _surface_line(second, k1, k2, mean_xy, pair_d2)
+        if t2 > 0.0:
+            cross = (ex - mean_xy[k1, 0]) * ty - (ey - mean_xy[k1, 1]) * tx
+            d2 = cross * cross / t2
+            term = math.exp(-d2 * inv_line)
+            total += term
+            inv_t = 1.0 / math.sqrt(t2)
+            nxv, nyv = ty * inv_t, -tx * inv_t  # the line's unit normal
+            d = (ex - mean_xy[k1, 0]) * nxv + (ey - mean_xy[k1, 1]) * nyv
+            om = inv_line * term  # w exp(-w d^2), d^2 the squared distance across the line
+            j2 = -ay * nxv + ax * nyv
+            h00 += om * nxv * nxv
+            h01 += om * nxv * nyv
+            h02 += om * nxv * j2
+            h11 += om * nyv * nyv
+            h12 += om * nyv * j2
+            h22 += om * j2 * j2
+            g0 += om * nxv * d
+            g1 += om * nyv * d
+            g2 += om * j2 * d
+        else:
+            d2 = best
+            term = math.exp(-d2 * score_inv[j])
+            total += term
+            rx = ex - mean_xy[k1, 0]
+            ry = ey - mean_xy[k1, 1]
+            om = score_inv[j] * term
+            h00 += om
+            h02 -= om * ay
+            h11 += om
+            h12 += om * ax
+            h22 += om * (ax * ax + ay * ay)
+            g0 += om * rx
+            g1 += om * ry
+            g2 += om * (ax * ry - ay * rx)
+        like -= min(d2, miss_d2) * like_inv
+    normal[0], normal[1], normal[2], normal[3], normal[4], normal[5] = h00, h01, h02, h11, h12, h22
+    normal[6], normal[7], normal[8] = g0, g1, g2
+    return total, like, hits
+
+
+@njit(cache=True, inline="always")
+def _solve_normal(normal, out):
+    return _solve3(normal[0], normal[1], normal[2], normal[3], normal[4], normal[5], normal[6], normal[7],
+                   normal[8], out)  # fmt: skip
+
+
+@njit(cache=True)
+def _finish(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line, like_inv,
+            miss_d2, iterations, tol_xy, tol_phi):  # fmt: skip
+    """The score, log-likelihood and hits over all of `ends` at `pose`, after up to `iterations`
+    Gauss-Newton steps on the score from it (`pose` moved in place): the normal equations of each pass
+    (`_pass`) are solved and the step is kept if the score rises (else it is halved, up to twice). Stops
+    when a step is below (tol_xy, tol_phi), no step raises the score, or after `iterations`. A continuous
+    refinement where the climb's last step halvings probe a lattice of poses: the same optimum in a few
+    passes over the returns instead of some fifty. Every pass scores, weighs and linearises at once, so
+    a kept step's pass is the next step's linearisation and, at the end, the weight."""
+    normal = np.empty(9)
+    trial = np.empty(9)
     delta = np.empty(3)
     cand = np.empty(3)
+    current, like, hits = _pass(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2,
+                                inv_line, like_inv, miss_d2, normal)  # fmt: skip
     for _ in range(iterations):
-        c, s = math.cos(pose[2]), math.sin(pose[2])
-        h00 = h01 = h02 = h11 = h12 = h22 = 0.0
-        g0 = g1 = g2 = 0.0
-        for j in range(ends.shape[0]):
-            lx, ly = ends[j, 0], ends[j, 1]
-            ax = c * lx - s * ly  # the end point relative to the pose: d e / d phi = (-ay, ax)
-            ay = s * lx + c * ly
-            ex, ey = pose[0] + ax, pose[1] + ay
-            ux = c * dirs[j, 0] - s * dirs[j, 1]
-            uy = s * dirs[j, 0] + c * dirs[j, 1]
-            best, second, k1, k2 = _nearest_two(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy)
-            if best < 0.0:
-                continue
-            tx, ty, t2 = _surface_line(second, k1, k2, mean_xy, pair_d2)
-            if t2 > 0.0:
-                inv_t = 1.0 / math.sqrt(t2)
-                nxv, nyv = ty * inv_t, -tx * inv_t  # the line's unit normal
-                d = (ex - mean_xy[k1, 0]) * nxv + (ey - mean_xy[k1, 1]) * nyv
-                om = inv_line * math.exp(-inv_line * d * d)
-                j2 = -ay * nxv + ax * nyv
-                h00 += om * nxv * nxv
-                h01 += om * nxv * nyv
-                h02 += om * nxv * j2
-                h11 += om * nyv * nyv
-                h12 += om * nyv * j2
-                h22 += om * j2 * j2
-                g0 += om * nxv * d
-                g1 += om * nyv * d
-                g2 += om * j2 * d
-            else:
-                rx = ex - mean_xy[k1, 0]
-                ry = ey - mean_xy[k1, 1]
-                om = score_inv[j] * math.exp(-score_inv[j] * (rx * rx + ry * ry))
-                h00 += om
-                h02 -= om * ay
-                h11 += om
-                h12 += om * ax
-                h22 += om * (ax * ax + ay * ay)
-                g0 += om * rx
-                g1 += om * ry
-                g2 += om * (ax * ry - ay * rx)
-        if not _solve3(h00, h01, h02, h11, h12, h22, g0, g1, g2, delta):
+        if not _solve_normal(normal, delta):
             break
-        sc = -1.0
+        sc, sl, sh = -1.0, 0.0, 0
         for _halving in range(3):  # the step, then half and a quarter of it, until the score rises
             cand[:] = pose + delta
-            sc = _score(
-                cand, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line, current
-            )
+            sc, sl, sh = _pass(cand, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2,
+                               inv_line, like_inv, miss_d2, trial)  # fmt: skip
             if sc > current:
                 break
             delta *= 0.5
         if sc <= current:
             break  # no step raises the score
-        current = sc
+        current, like, hits = sc, sl, sh
         pose[:] = cand
+        normal[:] = trial
         if abs(delta[0]) < tol_xy and abs(delta[1]) < tol_xy and abs(delta[2]) < tol_phi:
             break
-    return current
+    return current, like, hits
 
 
 @njit(cache=True)
 def _fine_climb(pose, climb_ends, climb_dirs, climb_inv, ends, dirs, score_inv, x0, y0, nx, ny, cell_m, kernel,
                 grid, mean_xy, match):  # fmt: skip
     """The fine climb from `pose` (in place) on the returns `climb_ends` (every match_climb_stride-th of `ends`),
-    with the steps and levels of `match`, then match[11] Gauss-Newton steps on all of `ends` (`_polish`,
-    to within match[12] m and rad); returns the score over all of `ends`."""
-    current = _climb(pose, climb_ends, climb_dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, climb_inv, match[7],
-                     match[4], match[0], match[1], int(match[2]), int(match[3]))  # fmt: skip
-    if climb_ends.shape[0] != ends.shape[0]:
-        current = _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, match[7],
-                         match[4], -np.inf)  # fmt: skip
-    if match[11] > 0:
-        current = _polish(pose, current, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv,
-                          match[7], match[4], int(match[11]), match[12], match[12])  # fmt: skip
-    return current
+    with the steps and levels of `match`, then match[11] Gauss-Newton steps on all of `ends` (`_finish`,
+    to within match[12] m and rad); returns the score, the log-likelihood and the hits over all of `ends`."""
+    _climb(pose, climb_ends, climb_dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, climb_inv, match[7], match[4],
+           match[0], match[1], int(match[2]), int(match[3]))  # fmt: skip
+    return _finish(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, match[7], match[4],
+                   match[5], match[6], int(match[11]), match[12], match[12])  # fmt: skip
 
 
-@njit(cache=True)
-def _weigh(i, pose, current, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, match, out):
-    """Particle i's result: the matched pose, its score and the scan's log-likelihood there."""
-    like, hits = _log_likelihood(
-        pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, match[5], match[6], match[7]
-    )
+@njit(cache=True, inline="always")
+def _weigh(i, pose, result, out):
+    """Particle i's result: the matched pose, and its (score, log-likelihood, hits) there."""
     out[i, 0], out[i, 1], out[i, 2] = pose[0], pose[1], pose[2]
-    out[i, 3] = current
-    out[i, 4] = like
-    out[i, 5] = hits
+    out[i, 3], out[i, 4], out[i, 5] = result[0], result[1], result[2]
 
 
 @njit(cache=True)
@@ -475,11 +490,13 @@ def _match_one(i, map_xy, map_p, lo, hi, pose0, climb_ends, climb_dirs, climb_in
     nx, ny = int(window[2]), int(window[3])
     pose = pose0.copy()
     used = _rasterise(map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched)
-    current = 0.0
     if used:
-        current = _fine_climb(pose, climb_ends, climb_dirs, climb_inv, ends, dirs, score_inv, x0, y0, nx, ny, cell_m,
-                              kernel, grid, sums, match)  # fmt: skip
-    _weigh(i, pose, current, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, sums, match, out)
+        result = _fine_climb(pose, climb_ends, climb_dirs, climb_inv, ends, dirs, score_inv, x0, y0, nx, ny, cell_m,
+                             kernel, grid, sums, match)  # fmt: skip
+    else:  # no map here: every return misses
+        result = _finish(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, sums, score_inv, match[7], match[4],
+                         match[5], match[6], 0, match[12], match[12])  # fmt: skip
+    _weigh(i, pose, result, out)
     for slot in range(used):
         grid[touched[slot]] = _EMPTY
 
@@ -535,10 +552,10 @@ def _coarse_start_one(i, map_xy, map_p, lo, hi, pose0, climb_ends, climb_dirs, c
         cc = cell_m * factor
         dx, dy = second[0] - out[i, 0], second[1] - out[i, 1]
         if dx * dx + dy * dy > cc * cc or abs(second[2] - out[i, 2]) > 0.5 * factor * match[1]:
-            score2 = _fine_climb(second, climb_ends, climb_dirs, climb_inv, ends, dirs, score_inv, x0, y0, nx, ny,
+            result = _fine_climb(second, climb_ends, climb_dirs, climb_inv, ends, dirs, score_inv, x0, y0, nx, ny,
                                  cell_m, kernel, grid, sums, match)  # fmt: skip
-            if score2 > out[i, 3] + match[10] * ends.shape[0]:
-                _weigh(i, second, score2, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, sums, match, out)
+            if result[0] > out[i, 3] + match[10] * ends.shape[0]:
+                _weigh(i, second, result, out)
     for slot in range(used):
         grid[touched[slot]] = _EMPTY
     for lv in range(depth):

@@ -14,6 +14,7 @@ import pytest
 from gslam.config import FilterConfig
 from gslam.filter import GSlamFilter
 from gslam.mapupdate import select, wholemap, windowed
+from gslam.mapupdate.noise import share_bounds
 from gslam.pointmap import PointMap, cell_keys, distinct_maps
 from gslam.scan import Scan, ScanGeometry
 from pipelines.demo.world import World, ray_cast
@@ -39,12 +40,22 @@ class _Draws:
         self.flat = [noise[..., 0].ravel().astype(float), noise[..., 1].ravel().astype(float)]
 
     def standard_normal(self, size, dtype=None):
-        if isinstance(size, tuple) and len(size) == 4:
-            assert size == self.noise.shape
-            return self.noise
         out = self.flat.pop(0)
         assert out.shape == (size,)
         return out
+
+    def spawn(self, k):
+        """The compiled update's shares (`gslam.mapupdate.noise`): each hands its particles' rows."""
+        return [_Share(self.noise[a:b]) for a, b in share_bounds(len(self.noise), k)]
+
+
+class _Share:
+    def __init__(self, rows: np.ndarray) -> None:
+        self.rows = rows
+
+    def standard_normal(self, dtype=None, out=None):
+        assert dtype == np.float32 and out is not None and out.shape == self.rows.shape
+        out[...] = self.rows
 
 
 class _Recording:

@@ -8,7 +8,8 @@ grown by a margin. Points outside the window are copied unchanged (neither obser
 so the work per update depends on the scan, not on the size of the map.
 
 Per particle i (independent, so spread over threads with numba prange; the random draws are made
-beforehand from the filter's seeded Generator, so the result does not depend on the thread count):
+beforehand by generators spawned from the filter's seeded Generator, `gslam.mapupdate.noise`, so the
+result does not depend on the thread count):
 
 1. Every map point in the window is projected on its beam (eq. meas1) and gets q (eq. 6): a Gaussian
    bump around the return over `free_ratio` in front of it, 1 behind it or out of view; its p is
@@ -30,6 +31,7 @@ import numpy as np
 from numba import njit, prange
 
 from gslam.config import FilterConfig
+from gslam.mapupdate.noise import NoiseDraws
 from gslam.motion import wrap_angle_scalar
 from gslam.pointmap import MAP_DTYPE, PointMap
 from gslam.scan import Scan, inverse_measure, window_boxes
@@ -482,6 +484,7 @@ class WindowedUpdate:
             raise ValueError("the compiled map update does not implement these settings; use gslam.mapupdate.select")
         self.cfg = cfg
         self.workspace = UpdateWorkspace(threads, cfg.max_points_per_cell)
+        self.noise = NoiseDraws(threads)
 
     def __call__(
         self,
@@ -498,7 +501,7 @@ class WindowedUpdate:
         xy, p, lo, hi = layout
         log_like = matched_log_like / (cfg.weight_gain * n) if len(p) else np.zeros(n)
         returns = scan.returns
-        noise = rng.standard_normal((n, int(returns.sum()), cfg.points_per_observation, 2), dtype=np.float32)
+        noise = self.noise.draw(rng, (n, int(returns.sum()), cfg.points_per_observation, 2))
         geom = scan.geometry
         out_xy, out_p, bounds = update_maps(
             xy,
