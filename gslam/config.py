@@ -190,9 +190,17 @@ class FilterConfig:
     poses; the Gauss-Newton finish (match_polish_iterations), the score it reports and the weight use every
     return. On the corpus the finish on all returns after a climb on every second one was as accurate as
     the climb on all of them, at the cost of the climb on half (docs/CHOICES.md). 1: the climb on all."""
+    match_fine_stride: int = 1
+    """k > 1: the climb's last `match_fine_levels` step sizes (its finest: 6, 3 and 1.6 mm with the default
+    steps) score every k-th of the climb's returns, the larger steps, which find the basin, keeping them
+    all; the Gauss-Newton finish on every return follows. 2 makes the matcher 11 % cheaper and measured
+    within the seeds' spread on six logs of the corpus, but the campus needs more seeds to tell
+    (docs/CHOICES.md), so it is not the default. 1: the whole climb on the climb's returns."""
+    match_fine_levels: int = 3
+    """How many of the climb's `match_levels` + 1 step sizes, the finest, `match_fine_stride` applies to."""
     match_polish_iterations: int = 5
     """After the climb's `match_levels` step halvings, at most this many Gauss-Newton steps on the score over
-    all the returns (`gslam.scanmatch._polish`: iteratively reweighted least squares on the point-to-line
+    all the returns (`gslam.scanmatch._finish`: iteratively reweighted least squares on the point-to-line
     and point-to-point residuals, a step kept only if the score rises): a continuous refinement of the
     climb's lattice pose with every return. 0: none."""
     match_window_margin_m: float = 1.0
@@ -346,6 +354,8 @@ _LIMITS: dict[str, tuple[float, float, bool]] = {
     "match_max_iterations": (1, 10_000, True),
     "match_polish_iterations": (0, 1_000, True),
     "match_climb_stride": (1, 10_000, True),
+    "match_fine_stride": (1, 10_000, True),
+    "match_fine_levels": (0, 64, True),
     "match_min_score": (0, 1, True),
     "resample_threshold": (0, 1, False),
     "motion_noise_window": (1, 1_000_000, True),

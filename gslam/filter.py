@@ -259,6 +259,8 @@ class GSlamFilter:
             coarse_reference=self._fit_reference,
             polish_iterations=cfg.match_polish_iterations,
             climb_stride=cfg.match_climb_stride,
+            fine_stride=cfg.match_fine_stride,
+            fine_levels=cfg.match_fine_levels,
         )
         if not climb:
             return 0, log_like

@@ -463,13 +463,25 @@ def _finish(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, sco
 
 
 @njit(cache=True)
-def _fine_climb(pose, climb_ends, climb_dirs, climb_inv, ends, dirs, score_inv, x0, y0, nx, ny, cell_m, kernel,
+def _fine_climb(pose, climb_ends, climb_dirs, climb_inv,
+                fine_ends, fine_dirs, fine_inv, ends, dirs, score_inv, x0, y0, nx, ny, cell_m, kernel,
                 grid, mean_xy, match):  # fmt: skip
     """The fine climb from `pose` (in place) on the returns `climb_ends` (every match_climb_stride-th of `ends`),
-    with the steps and levels of `match`, then match[11] Gauss-Newton steps on all of `ends` (`_finish`,
-    to within match[12] m and rad); returns the score, the log-likelihood and the hits over all of `ends`."""
-    _climb(pose, climb_ends, climb_dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, climb_inv, match[7], match[4],
-           match[0], match[1], int(match[2]), int(match[3]))  # fmt: skip
+    with the steps and levels of `match`, its last match[13] step sizes on `fine_ends` (thinner still), then
+    match[11] Gauss-Newton steps on all of `ends` (`_finish`, to within match[12] m and rad); returns the
+    score, the log-likelihood and the hits over all of `ends`."""
+    levels = int(match[2])
+    fine = min(int(match[13]), levels)
+    if fine > 0:
+        # the larger steps on the climb's returns, down to the last `fine` step sizes; those on `fine_ends`
+        _climb(pose, climb_ends, climb_dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, climb_inv, match[7],
+               match[4], match[0], match[1], levels - fine, int(match[3]))  # fmt: skip
+        f = 0.5 ** (levels - fine + 1)
+        _climb(pose, fine_ends, fine_dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, fine_inv, match[7], match[4],
+               match[0] * f, match[1] * f, fine - 1, int(match[3]))  # fmt: skip
+    else:
+        _climb(pose, climb_ends, climb_dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, climb_inv, match[7],
+               match[4], match[0], match[1], levels, int(match[3]))  # fmt: skip
     return _finish(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, match[7], match[4],
                    match[5], match[6], int(match[11]), match[12], match[12])  # fmt: skip
 
@@ -482,7 +494,8 @@ def _weigh(i, pose, result, out):
 
 
 @njit(cache=True)
-def _match_one(i, map_xy, map_p, lo, hi, pose0, climb_ends, climb_dirs, climb_inv, ends, dirs, score_inv, window,
+def _match_one(i, map_xy, map_p, lo, hi, pose0, climb_ends, climb_dirs, climb_inv,
+               fine_ends, fine_dirs, fine_inv, ends, dirs, score_inv, window,
                cell_m, kernel, min_p, match, grid, sums, touched, out):  # fmt: skip
     """Rasterise particle i's window of its map, climb the score from the motion sample, weigh the scan
     there; reset the raster."""
@@ -491,7 +504,8 @@ def _match_one(i, map_xy, map_p, lo, hi, pose0, climb_ends, climb_dirs, climb_in
     pose = pose0.copy()
     used = _rasterise(map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched)
     if used:
-        result = _fine_climb(pose, climb_ends, climb_dirs, climb_inv, ends, dirs, score_inv, x0, y0, nx, ny, cell_m,
+        result = _fine_climb(pose, climb_ends, climb_dirs, climb_inv,
+                             fine_ends, fine_dirs, fine_inv, ends, dirs, score_inv, x0, y0, nx, ny, cell_m,
                              kernel, grid, sums, match)  # fmt: skip
     else:  # no map here: every return misses
         result = _finish(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, sums, score_inv, match[7], match[4],
@@ -502,7 +516,8 @@ def _match_one(i, map_xy, map_p, lo, hi, pose0, climb_ends, climb_dirs, climb_in
 
 
 @njit(cache=True)
-def _coarse_start_one(i, map_xy, map_p, lo, hi, pose0, climb_ends, climb_dirs, climb_inv, ends, dirs, score_inv,
+def _coarse_start_one(i, map_xy, map_p, lo, hi, pose0, climb_ends, climb_dirs, climb_inv,
+                      fine_ends, fine_dirs, fine_inv, ends, dirs, score_inv,
                       coarse_ends, coarse_dirs, coarse_inv, window, cell_m, kernel, min_p, match, grid, sums, touched,
                       coarse_grid, coarse_sums, coarse_touched, out):  # fmt: skip
     """The second start, coarse to fine, for particle i whose fine match is in out[i]: climb from the
@@ -552,7 +567,8 @@ def _coarse_start_one(i, map_xy, map_p, lo, hi, pose0, climb_ends, climb_dirs, c
         cc = cell_m * factor
         dx, dy = second[0] - out[i, 0], second[1] - out[i, 1]
         if dx * dx + dy * dy > cc * cc or abs(second[2] - out[i, 2]) > 0.5 * factor * match[1]:
-            result = _fine_climb(second, climb_ends, climb_dirs, climb_inv, ends, dirs, score_inv, x0, y0, nx, ny,
+            result = _fine_climb(second, climb_ends, climb_dirs, climb_inv,
+                                 fine_ends, fine_dirs, fine_inv, ends, dirs, score_inv, x0, y0, nx, ny,
                                  cell_m, kernel, grid, sums, match)  # fmt: skip
             if result[0] > out[i, 3] + match[10] * ends.shape[0]:
                 _weigh(i, second, result, out)
@@ -564,7 +580,8 @@ def _coarse_start_one(i, map_xy, map_p, lo, hi, pose0, climb_ends, climb_dirs, c
 
 
 @njit(cache=True, parallel=True, nogil=True)
-def _match_all(map_xy, map_p, lo, hi, poses, climb_ends, climb_dirs, climb_inv, ends, dirs, score_inv, windows,
+def _match_all(map_xy, map_p, lo, hi, poses, climb_ends, climb_dirs, climb_inv,
+               fine_ends, fine_dirs, fine_inv, ends, dirs, score_inv, windows,
                cell_m, kernel, min_p, match, grids, sums, touched):  # fmt: skip
     """_match_one for every particle, spread over the workers (one raster each)."""
     n = poses.shape[0]
@@ -575,14 +592,16 @@ def _match_all(map_xy, map_p, lo, hi, poses, climb_ends, climb_dirs, climb_inv, 
             i = next_index(counter)  # the next particle not taken (gslam.workqueue)
             if i >= n:
                 break
-            _match_one(i, map_xy, map_p, lo[i], hi[i], poses[i], climb_ends, climb_dirs, climb_inv, ends, dirs,
+            _match_one(i, map_xy, map_p, lo[i], hi[i], poses[i], climb_ends, climb_dirs, climb_inv,
+                       fine_ends, fine_dirs, fine_inv, ends, dirs,
                        score_inv, windows[i], cell_m, kernel, min_p, match, grids[w], sums[w], touched[w],
                        out)  # fmt: skip
     return out
 
 
 @njit(cache=True, parallel=True, nogil=True)
-def _coarse_start_all(chosen, map_xy, map_p, lo, hi, poses, climb_ends, climb_dirs, climb_inv, ends, dirs,
+def _coarse_start_all(chosen, map_xy, map_p, lo, hi, poses, climb_ends, climb_dirs, climb_inv,
+                      fine_ends, fine_dirs, fine_inv, ends, dirs,
                       score_inv, coarse_ends, coarse_dirs, coarse_inv, windows, cell_m, kernel, min_p, match, grids,
                       sums, touched, coarse_grids, coarse_sums, coarse_touched, out):  # fmt: skip
     """_coarse_start_one for the particles `chosen`, spread over the workers; updates `out` in place."""
@@ -593,7 +612,8 @@ def _coarse_start_all(chosen, map_xy, map_p, lo, hi, poses, climb_ends, climb_di
             if k >= chosen.shape[0]:
                 break
             i = chosen[k]
-            _coarse_start_one(i, map_xy, map_p, lo[i], hi[i], poses[i], climb_ends, climb_dirs, climb_inv, ends, dirs,
+            _coarse_start_one(i, map_xy, map_p, lo[i], hi[i], poses[i], climb_ends, climb_dirs, climb_inv,
+                              fine_ends, fine_dirs, fine_inv, ends, dirs,
                               score_inv, coarse_ends, coarse_dirs, coarse_inv, windows[i], cell_m, kernel, min_p, match,
                               grids[w], sums[w], touched[w], coarse_grids[w], coarse_sums[w], coarse_touched[w],
                               out)  # fmt: skip
@@ -666,6 +686,8 @@ def match_and_weigh(
     polish_iterations: int = 0,
     polish_tolerance: float = 1e-4,
     climb_stride: int = 1,
+    fine_stride: int = 1,
+    fine_levels: int = 0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Match the scan end points `ends_sensor` (K, 2) against each particle's map and weigh it there.
 
@@ -680,8 +702,9 @@ def match_and_weigh(
     particles whose fine fit (score / returns) is at most `coarse_gate` x the reference fit: the best fine
     fit among the particles, or `coarse_reference` if higher (the filter passes the median fit of its
     previous update, so a slip that takes every particle out of the fine climb's basin is still caught);
-    above 1: every particle. `climb_stride` k > 1: the climbs score every k-th return; the Gauss-Newton
-    finish (`polish_iterations`), the scores returned and the weight use all. Returns (matched
+    above 1: every particle. `climb_stride` k > 1: the climbs score every k-th return, and their last
+    `fine_levels` step sizes every `fine_stride`-th of those; the Gauss-Newton finish (`polish_iterations`),
+    the scores returned and the weight use all. Returns (matched
     poses (N, 3), score at the matched pose (N,), log-likelihood there (N,), returns that found an
     occupied cell near their end point (N,)).
     """
@@ -718,6 +741,7 @@ def match_and_weigh(
             coarse_min_gain,
             polish_iterations,
             polish_tolerance,
+            fine_levels if fine_stride > 1 else 0,
         ]
     )
     dirs = ends / np.maximum(rng, 1e-12)[:, None]
@@ -727,7 +751,8 @@ def match_and_weigh(
     lo = np.asarray(map_lo, dtype=np.int64)
     hi = np.asarray(map_hi, dtype=np.int64)
     grids = (workspace.grids, workspace.sums, workspace.touched)
-    climb = _every(climb_stride, (ends, dirs, score_inv))
+    thinned = _every(climb_stride, (ends, dirs, score_inv))
+    climb = (*thinned, *_every(fine_stride, thinned))
     out = _match_all(map_xy, map_p, lo, hi, poses, *climb, ends, dirs, score_inv, windows, float(cell_m), int(kernel),
                      float(min_p), match, *grids)  # fmt: skip
     if f > 1 and max_iterations > 0:
@@ -737,7 +762,7 @@ def match_and_weigh(
         if len(chosen):
             _coarse_start_all(
                 chosen, map_xy, map_p, lo, hi, poses, *climb, ends, dirs, score_inv,
-                *_every(coarse_stride, climb), windows, float(cell_m), int(kernel), float(min_p),
+                *_every(coarse_stride, thinned), windows, float(cell_m), int(kernel), float(min_p),
                 match, *grids, workspace.coarse_grids, workspace.coarse_sums, workspace.coarse_touched, out,
             )  # fmt: skip
     return out[:, :3].copy(), out[:, 3].copy(), out[:, 4].copy(), out[:, 5].astype(np.int64)

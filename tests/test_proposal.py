@@ -278,6 +278,26 @@ def test_climb_on_every_second_return_then_the_finish_on_all():
         assert abs(finished[i, 2] - truth[2]) < math.radians(0.05)
 
 
+def test_the_climbs_finest_steps_on_thinner_returns_then_the_finish_on_all():
+    # match_fine_stride 2: the climb's last three step sizes on every second of the climb's returns; the
+    # finish on all of them still lands within 1 cm and 0.05 deg of the truth. Stride 1, or no fine
+    # levels, is the climb as before.
+    m, truth, pts, start = _room_and_two_starts(3)
+    plain, plain_score, _, _ = _match([m, m], start, pts, climb_stride=2, polish_iterations=5)
+    for off in ({"fine_stride": 1, "fine_levels": 3}, {"fine_stride": 2, "fine_levels": 0}):
+        same, same_score, _, _ = _match([m, m], start, pts, climb_stride=2, polish_iterations=5, **off)
+        np.testing.assert_array_equal(same, plain)
+        np.testing.assert_array_equal(same_score, plain_score)
+    thin, _, _, _ = _match([m, m], start, pts, climb_stride=2, fine_stride=2, fine_levels=3)
+    climbed, _, _, _ = _match([m, m], start, pts, climb_stride=2)
+    assert not np.array_equal(thin, climbed)  # the finest steps did walk on other returns
+    out, score, _, _ = _match([m, m], start, pts, climb_stride=2, fine_stride=2, fine_levels=3, polish_iterations=5)
+    for i in range(2):
+        assert score[i] >= 0.999 * plain_score[i]
+        assert np.hypot(*(out[i, :2] - truth[:2])) < 0.01, out[i]
+        assert abs(out[i, 2] - truth[2]) < math.radians(0.05)
+
+
 def test_gauss_newton_polish_leaves_a_pose_without_map_alone():
     # No returns near any map point: nothing constrains the pose, the normal equations are singular and the
     # motion sample stands.
