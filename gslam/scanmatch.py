@@ -113,14 +113,21 @@ def _surface_line(second, k1, k2, mean_xy, pair_d2):
 
 
 @njit(cache=True, inline="always")
+def _across_d2(ex, ey, k1, tx, ty, t2, mean_xy):
+    """Squared distance from (ex, ey) across the line through cell mean k1 with direction (tx, ty), t2 its
+    squared length (`_surface_line`)."""
+    cross = (ex - mean_xy[k1, 0]) * ty - (ey - mean_xy[k1, 1]) * tx
+    return cross * cross / t2
+
+
+@njit(cache=True, inline="always")
 def _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2):
     """(squared distance from (ex, ey) to the map, True when it is taken across the line through the two
     nearest usable cell means) or (-1, False) when no usable cell is found."""
     best, second, k1, k2 = _nearest_two(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy)
     tx, ty, t2 = _surface_line(second, k1, k2, mean_xy, pair_d2)
     if t2 > 0.0:
-        cross = (ex - mean_xy[k1, 0]) * ty - (ey - mean_xy[k1, 1]) * tx
-        return cross * cross / t2, True
+        return _across_d2(ex, ey, k1, tx, ty, t2, mean_xy), True
     return best, False
 
 
@@ -320,9 +327,12 @@ def _climb(
 
 
 @njit(cache=True, inline="always")
-def _solve3(h00, h01, h02, h11, h12, h22, g0, g1, g2, out):
-    """out = -H^-1 g for the symmetric 3 x 3 H (its upper triangle), by Cholesky; False when H is not
-    positive definite (a scan that constrains no direction)."""
+def _solve3(normal, out):
+    """out = -H^-1 g for the symmetric 3 x 3 H (its upper triangle) and g in `normal` (h00, h01, h02, h11,
+    h12, h22, g0, g1, g2, as `_pass` fills it), by Cholesky; False when H is not positive definite (a scan
+    that constrains no direction)."""
+    h00, h01, h02, h11, h12, h22, g0, g1, g2 = (normal[0], normal[1], normal[2], normal[3], normal[4], normal[5],
+                                                normal[6], normal[7], normal[8])  # fmt: skip
     if h00 <= 0.0:
         return False
     l00 = math.sqrt(h00)
@@ -380,8 +390,7 @@ def _pass(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score
         hits += 1
         tx, ty, t2 = _surface_line(second, k1, k2, mean_xy, pair_d2)
         if t2 > 0.0:
-            cross = (ex - mean_xy[k1, 0]) * ty - (ey - mean_xy[k1, 1]) * tx
-            d2 = cross * cross / t2
+            d2 = _across_d2(ex, ey, k1, tx, ty, t2, mean_xy)
             term = math.exp(-d2 * inv_line)
             total += term
             inv_t = 1.0 / math.sqrt(t2)
@@ -419,12 +428,6 @@ def _pass(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score
     return total, like, hits
 
 
-@njit(cache=True, inline="always")
-def _solve_normal(normal, out):
-    return _solve3(normal[0], normal[1], normal[2], normal[3], normal[4], normal[5], normal[6], normal[7],
-                   normal[8], out)  # fmt: skip
-
-
 @njit(cache=True)
 def _finish(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line, like_inv,
             miss_d2, iterations, tol_xy, tol_phi):  # fmt: skip
@@ -442,7 +445,7 @@ def _finish(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, sco
     current, like, hits = _pass(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2,
                                 inv_line, like_inv, miss_d2, normal)  # fmt: skip
     for _ in range(iterations):
-        if not _solve_normal(normal, delta):
+        if not _solve3(normal, delta):
             break
         sc, sl, sh = -1.0, 0.0, 0
         for _halving in range(3):  # the step, then half and a quarter of it, until the score rises
