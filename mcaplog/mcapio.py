@@ -23,11 +23,11 @@ from mcap.reader import make_reader
 from mcap.records import Chunk
 from mcap.stream_reader import get_chunk_data_stream
 from mcap.well_known import MessageEncoding, SchemaEncoding
-from mcap.writer import CompressionType, Writer
 from mcap_protobuf.decoder import DecoderFactory
 from mcap_protobuf.schema import register_schema
 
 from .tempfiles import create_temporary
+from .writer import McapWriter
 
 NS = 1_000_000_000
 
@@ -45,7 +45,7 @@ class AtomicMcapWriter:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         fd, self.tmp_path = create_temporary(self.path)
         self._file = os.fdopen(fd, "wb")
-        self._writer = Writer(self._file, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+        self._writer = McapWriter(self._file, chunk_size=chunk_size)
         self._writer.start(profile=profile, library="gslam")
         self._channels: dict[str, int] = {}
         self._json_schemas: dict[str, int] = {}
