@@ -208,11 +208,12 @@ def _rasterise(map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums,
     """Rasterise the points lo:hi with p >= min_p inside the window into `grid` (slot per occupied cell,
     -1 empty); sums[slot, :2] ends as the mean of the cell's points. Returns the occupied cells."""
     used = 0
+    inv = 1.0 / cell_m  # a multiplication per point, as `_nearest_two`'s
     for k in range(lo, hi):
         if map_p[k] < min_p:
             continue
-        cx = int(math.floor((map_xy[k, 0] - x0) / cell_m))
-        cy = int(math.floor((map_xy[k, 1] - y0) / cell_m))
+        cx = int(math.floor((map_xy[k, 0] - x0) * inv))
+        cy = int(math.floor((map_xy[k, 1] - y0) * inv))
         if cx < 0 or cx >= nx or cy < 0 or cy >= ny:
             continue
         used = _add_point(map_xy[k, 0], map_xy[k, 1], cx * ny + cy, grid, sums, touched, used)
@@ -247,11 +248,12 @@ def _rasterise_pyramid(
         offset += cnx * cny
         cused[lv] = 0
     used = 0
+    inv = 1.0 / cell_m  # a multiplication per point, as `_nearest_two`'s
     for k in range(lo, hi):
         if map_p[k] < min_p:
             continue
-        cx = int(math.floor((map_xy[k, 0] - x0) / cell_m))
-        cy = int(math.floor((map_xy[k, 1] - y0) / cell_m))
+        cx = int(math.floor((map_xy[k, 0] - x0) * inv))
+        cy = int(math.floor((map_xy[k, 1] - y0) * inv))
         if cx < 0 or cx >= nx or cy < 0 or cy >= ny:
             continue
         used = _add_point(map_xy[k, 0], map_xy[k, 1], cx * ny + cy, grid, sums, touched, used)

@@ -92,7 +92,10 @@ class AtomicMcapWriter:
 
     def write_proto_bytes(self, topic: str, message_type: type, data: bytes, log_time_ns: int) -> None:
         """Write an already serialised protobuf message of `message_type` on `topic`."""
-        self._add(self._proto_channel(topic, message_type()), topic, log_time_ns, data)
+        channel = self._channels.get(topic)
+        if channel is None:
+            channel = self._proto_channel(topic, message_type())
+        self._add(channel, topic, log_time_ns, data)
 
     def write_json(
         self, topic: str, schema_name: str, schema: dict[str, Any], obj: dict[str, Any], log_time_ns: int

@@ -6,10 +6,14 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
+from foxglove_schemas_protobuf.LaserScan_pb2 import LaserScan
+from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
 from gslam.filter import SlamFilter
 from gslam.se2 import compose_inverse
 from mcaplog import channels as ch
+from mcaplog import wire
 from mcaplog.mcapio import AtomicMcapWriter, to_ns
 from pipelines.outputs.writer import RunEnd, RunStart
 from pipelines.run.runner import Step
@@ -55,7 +59,9 @@ class McapResultWriter:
         ns = to_ns(st.event.t_s)
         self.last_ns = ns
         w = self.writer
-        w.write_proto(ch.SLAM_POSE, ch.pose_in_frame(st.event.stamp_s, *r.best_pose, ch.MAP_FRAME), ns)
+        w.write_proto_bytes(
+            ch.SLAM_POSE, PoseInFrame, wire.pose_in_frame(st.event.stamp_s, *r.best_pose, ch.MAP_FRAME), ns
+        )
         self._frames(st, ns)
         self.steps_written += 1  # the trajectory in finish() covers exactly the poses written
         particles = ch.poses_in_frame_bytes(st.event.stamp_s, r.poses, ch.MAP_FRAME)
@@ -145,10 +151,10 @@ class McapResultWriter:
         else:
             links = [(ch.MAP_FRAME, ch.BASE_FRAME, *best)]
         links.append((ch.BASE_FRAME, ch.LASER_FRAME, *self.mount))
-        self.writer.write_proto(ch.TF, ch.frame_transforms(t, links), ns)
+        self.writer.write_proto_bytes(ch.TF, FrameTransforms, wire.frame_transforms(t, links), ns)
         g = st.event.geometry or self.geometry
-        scan = ch.laser_scan(t, np.asarray(st.event.ranges_m), g.start_angle_rad, g.end_angle_rad, None, ch.LASER_FRAME)
-        self.writer.write_proto(ch.SLAM_SCAN, scan, ns)
+        scan = wire.laser_scan(t, st.event.ranges_m, (g.start_angle_rad, g.end_angle_rad), ch.LASER_FRAME)
+        self.writer.write_proto_bytes(ch.SLAM_SCAN, LaserScan, scan, ns)
 
     def abort(self) -> None:
         if self.writer is not None:

@@ -93,7 +93,7 @@ class RerunResultWriter:
         self.pending_scans.append((st.event.ranges_m, st.laser_pose, bearings))  # end points computed at _flush
         self.pending_particles.append(r.poses[:, :2].copy())
         previous = self.online[-1] if self.online else r.best_pose[:2]
-        self.pending_poses.append(np.r_[r.best_pose[:3], previous])
+        self.pending_poses.append(np.concatenate((r.best_pose[:3], previous)))  # np.r_ cost 20 us a step
         self.online.append(r.best_pose[:2].copy())
         for key, value in (
             ("scan", st.event.index),
@@ -122,7 +122,8 @@ class RerunResultWriter:
             return
         columns = {}
         for path, rows in ((entity.SCAN, self._scan_end_points()), (entity.PARTICLES, self.pending_particles)):
-            columns[path] = (np.concatenate(rows), np.array([len(a) for a in rows]))
+            # float32, as the recording stores positions: half the bytes through the pipe, same values
+            columns[path] = (np.concatenate(rows).astype(np.float32), np.array([len(a) for a in rows]))
         scans = np.asarray(self.stats["scan"][-n:])
         times = np.asarray(self.stats["time"][-n:], dtype=float)
         stats = {name: np.asarray(self.stats[key][-n:], dtype=float) for name, key in _STATS_KEYS.items()}

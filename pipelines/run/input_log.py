@@ -133,7 +133,7 @@ class InputLog:
         if msg.topic == ch.LASER:
             ranges = np.asarray(v.ranges, dtype=float)
             geometry = self.scan_geometry(v, len(ranges))
-            if np.isnan(ranges).any() or (ranges < 0).any():
+            if not (ranges >= 0).all():  # NaN compares false: one pass finds NaN and negatives
                 raise ValueError("ranges must be non-negative numbers (+inf: no return)")
             inten = np.asarray(v.intensities, dtype=float) if len(v.intensities) == len(ranges) else None
             return ScanEvent(-1, msg.t_s, ch.t_of(v.timestamp), ranges, inten, geometry)
