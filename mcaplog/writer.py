@@ -55,7 +55,6 @@ class McapWriter:
 
     def __init__(self, stream: BinaryIO, chunk_size: int = 1 << 20) -> None:
         self._stream = stream
-        self._offset = 0
         self._chunk_size = chunk_size
         self._compressor = zstandard.ZstdCompressor()
         self._schemas: list[Schema] = []
@@ -75,7 +74,12 @@ class McapWriter:
 
     def _write(self, data: bytes | bytearray) -> None:
         self._stream.write(data)
-        self._offset += len(data)
+
+    @property
+    def _offset(self) -> int:
+        """Where the next record starts: the stream's own position (one write is one call, so an
+        interruption between two records leaves it true)."""
+        return self._stream.tell()
 
     def start(self, profile: str = "", library: str = "") -> None:
         self._write(MAGIC)
@@ -108,10 +112,12 @@ class McapWriter:
         index = self._index.get(channel_id)
         if index is None:
             index = self._index[channel_id] = []
-        index += (log_time, len(chunk))
+        offset = len(chunk)
         size = _MESSAGE_FIELDS + len(data)
-        chunk += _MESSAGE.pack(Opcode.MESSAGE, size, channel_id, sequence, log_time, publish_time)
-        chunk += data
+        # The record goes in with one extend, and only then into the index: a signal raised in between (Ctrl-C
+        # finishes the file) leaves a whole record, at worst not indexed, never an index entry without one.
+        chunk += _MESSAGE.pack(Opcode.MESSAGE, size, channel_id, sequence, log_time, publish_time) + data
+        index += (log_time, offset)
         if log_time < self._chunk_start:
             self._chunk_start = log_time
         if log_time > self._chunk_end:
@@ -126,15 +132,17 @@ class McapWriter:
         self._write(record)
 
     def _finish_chunk(self) -> None:
-        """Write the chunk (if it holds any message), its message indexes, and note its chunk index."""
+        """Write the chunk (if it holds any message), its message indexes, and note its chunk index. The chunk
+        is taken and a new one begun first: a chunk cut short by an interruption is never written twice."""
         if not self._index:
             return  # schemas and channels alone stay for the next chunk (they are repeated in the summary)
-        records = bytes(self._chunk)
+        records, message_index, start, end = bytes(self._chunk), self._index, self._chunk_start, self._chunk_end
+        self._new_chunk()
         compressed = self._compressor.compress(records)
         chunk = _record(
             Chunk(
-                message_start_time=self._chunk_start,
-                message_end_time=self._chunk_end,
+                message_start_time=start,
+                message_end_time=end,
                 uncompressed_size=len(records),
                 uncompressed_crc=zlib.crc32(records),
                 compression="zstd",
@@ -142,11 +150,11 @@ class McapWriter:
             )
         )
         chunk_offset = self._offset
-        self._write(chunk)
         index_offsets: dict[int, int] = {}
         parts: list[bytes] = []
-        at = self._offset
-        for channel_id, pairs in self._index.items():
+        at = chunk_offset + len(chunk)
+        counts: dict[int, int] = {}
+        for channel_id, pairs in message_index.items():
             size = 8 * len(pairs)
             part = _INDEX_HEAD.pack(Opcode.MESSAGE_INDEX, 2 + 4 + size, channel_id, size) + struct.pack(
                 f"<{len(pairs)}Q", *pairs
@@ -154,13 +162,13 @@ class McapWriter:
             index_offsets[channel_id] = at
             at += len(part)
             parts.append(part)
-            self._message_counts[channel_id] = self._message_counts.get(channel_id, 0) + len(pairs) // 2
-            self._message_count += len(pairs) // 2
+            counts[channel_id] = len(pairs) // 2
+        self._write(chunk)
         self._write(b"".join(parts))
         self._chunk_indexes.append(
             ChunkIndex(
-                message_start_time=self._chunk_start,
-                message_end_time=self._chunk_end,
+                message_start_time=start,
+                message_end_time=end,
                 chunk_start_offset=chunk_offset,
                 chunk_length=len(chunk),
                 message_index_offsets=index_offsets,
@@ -170,9 +178,11 @@ class McapWriter:
                 uncompressed_size=len(records),
             )
         )
-        first, last = self._time_span or (self._chunk_start, self._chunk_end)
-        self._time_span = (min(first, self._chunk_start), max(last, self._chunk_end))
-        self._new_chunk()
+        for channel_id, count in counts.items():
+            self._message_counts[channel_id] = self._message_counts.get(channel_id, 0) + count
+        self._message_count += sum(counts.values())
+        first, last = self._time_span or (start, end)
+        self._time_span = (min(first, start), max(last, end))
 
     def finish(self) -> None:
         """The last chunk, the data end, the summary (schemas, channels, statistics, chunk and metadata

@@ -78,3 +78,45 @@ def test_a_file_without_messages_is_valid() -> None:
     assert summary.statistics.message_count == 0
     assert list(reader.iter_messages()) == []
     assert [m.name for m in reader.iter_metadata()] == ["end"]
+
+
+class _InterruptedStream(io.BytesIO):
+    """A stream whose `at`-th write raises KeyboardInterrupt before writing (a Ctrl-C landing there)."""
+
+    def __init__(self, at: int) -> None:
+        super().__init__()
+        self.writes = 0
+        self.at = at
+
+    def write(self, data) -> int:
+        self.writes += 1
+        if self.writes == self.at:
+            raise KeyboardInterrupt
+        return super().write(data)
+
+
+def test_a_file_finished_after_an_interruption_mid_chunk_is_valid() -> None:
+    """As `gslam process` does on Ctrl-C: the interrupted write is lost, the file is finished and reads whole."""
+    sent = _messages(300, seed=3)
+    for at in (3, 4, 7):  # the first chunk's record, its message indexes, a later chunk
+        out = _InterruptedStream(at)
+        w = McapWriter(out, chunk_size=2048)
+        w.start()
+        channel = w.register_channel("/t", "json", w.register_schema("t", "jsonschema", b"{}"))
+        done = 0
+        try:
+            for _, t, data in sent:
+                w.add_message(channel, t, data, t)
+                done += 1
+        except KeyboardInterrupt:
+            pass
+        assert done < len(sent)
+        w.finish()
+        data = out.getvalue()
+        got = [m.data for _, _, m in make_reader(io.BytesIO(data)).iter_messages(log_time_order=False)]
+        # A prefix of what was sent, none twice: the messages of the chunk whose write was cut may be lost,
+        # and the interrupted call's own message may be in (the interruption came after its record).
+        assert got == [d for _, _, d in sent[: len(got)]] and len(got) <= done + 1
+        records = list(StreamReader(io.BytesIO(data), validate_crcs=True).records)
+        assert type(records[-1]).__name__ == "Footer"
+        assert [r.data for r in records if type(r).__name__ == "Message"] == got  # no chunk written twice
