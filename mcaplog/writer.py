@@ -2,7 +2,7 @@
 
 The `mcap` library's `Writer` builds every message record field by field in Python (a record object,
 five `struct` calls and two seeks) and every chunk's message indexes entry by entry: on intel's result
-(68 000 messages) that was about 1.9 s of the run, more than the messages' own encoding. Here a message
+(70 067 messages) 1.3 s in `add_message` and 0.65 s finishing chunks, 0.4 s of which is zstd. Here a message
 record is one `struct.pack` appended to the chunk, and a chunk's message index is packed in one call per
 channel. Every other record (header, schema, channel, chunk, chunk index, statistics, metadata, summary
 offsets, footer) is written by the `mcap` library's own record classes, in the layout its `Writer`
