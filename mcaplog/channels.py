@@ -132,11 +132,15 @@ STATS_SCHEMA: dict[str, Any] = {
 }
 
 
+def seconds_nanos(t_s: float) -> tuple[int, int]:
+    """A time in seconds as a Timestamp's whole seconds and nanoseconds (rounded, below one second)."""
+    sec = math.floor(t_s)
+    return int(sec), min(int(round((t_s - sec) * 1e9)), 999_999_999)
+
+
 def timestamp(t_s: float) -> Timestamp:
     ts = Timestamp()
-    sec = math.floor(t_s)
-    ts.seconds = int(sec)
-    ts.nanos = min(int(round((t_s - sec) * 1e9)), 999_999_999)
+    ts.seconds, ts.nanos = seconds_nanos(t_s)
     return ts
 
 

@@ -65,11 +65,11 @@ class AtomicMcapWriter:
             )
         return self._channels[topic]
 
-    def _proto_channel(self, topic: str, message: Any) -> int:
+    def _proto_channel(self, topic: str, message_type: type) -> int:
         if topic not in self._channels:
-            name = message.DESCRIPTOR.full_name  # one schema per message type, shared by its channels
+            name = message_type.DESCRIPTOR.full_name  # one schema per message type, shared by its channels
             if name not in self._proto_schemas:
-                self._proto_schemas[name] = register_schema(self._writer, type(message))
+                self._proto_schemas[name] = register_schema(self._writer, message_type)
             schema_id = self._proto_schemas[name]
             self._channels[topic] = self._writer.register_channel(
                 topic=topic, message_encoding=MessageEncoding.Protobuf, schema_id=schema_id
@@ -88,14 +88,11 @@ class AtomicMcapWriter:
 
     def write_proto(self, topic: str, message: Any, log_time_ns: int) -> None:
         """Write a protobuf message (a Foxglove schema) on `topic` at `log_time_ns`."""
-        self._add(self._proto_channel(topic, message), topic, log_time_ns, message.SerializeToString())
+        self._add(self._proto_channel(topic, type(message)), topic, log_time_ns, message.SerializeToString())
 
     def write_proto_bytes(self, topic: str, message_type: type, data: bytes, log_time_ns: int) -> None:
         """Write an already serialised protobuf message of `message_type` on `topic`."""
-        channel = self._channels.get(topic)
-        if channel is None:
-            channel = self._proto_channel(topic, message_type())
-        self._add(channel, topic, log_time_ns, data)
+        self._add(self._proto_channel(topic, message_type), topic, log_time_ns, data)
 
     def write_json(
         self, topic: str, schema_name: str, schema: dict[str, Any], obj: dict[str, Any], log_time_ns: int

@@ -23,6 +23,8 @@ from foxglove_schemas_protobuf.Quaternion_pb2 import Quaternion
 from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from google.protobuf.timestamp_pb2 import Timestamp
 
+from mcaplog.channels import seconds_nanos
+
 _DOUBLE = struct.Struct("<d")
 
 
@@ -72,21 +74,21 @@ def _int(field: int, value: int) -> bytes:
 
 def timestamp(t_s: float) -> bytes:
     """A google.protobuf.Timestamp's payload, rounded as `mcaplog.channels.timestamp`."""
-    sec = math.floor(t_s)
-    nanos = min(int(round((t_s - sec) * 1e9)), 999_999_999)
-    return _int(1, int(sec)) + _int(2, nanos)
+    sec, nanos = seconds_nanos(t_s)
+    return _int(1, sec) + _int(2, nanos)
 
 
-def _planar_pose(x: float, y: float, yaw: float) -> bytes:
-    """A foxglove.Pose's payload for a pose in the plane (as `mcaplog.channels._set_pose`)."""
-    position = _double(1, x) + _double(2, y)
-    orientation = _double(3, math.sin(yaw / 2)) + _double(4, math.cos(yaw / 2))
-    return _submessage(1, position) + _submessage(2, orientation)
+def _planar(x: float, y: float, yaw: float) -> tuple[bytes, bytes]:
+    """The payloads of a foxglove.Vector3 (x, y, 0) and a Quaternion (a turn of `yaw` about z): a pose in
+    the plane (as `mcaplog.channels._set_pose`) or a transform's translation and rotation."""
+    return _double(1, x) + _double(2, y), _double(3, math.sin(yaw / 2)) + _double(4, math.cos(yaw / 2))
 
 
 def pose_in_frame(t_s: float, x: float, y: float, yaw: float, frame_id: str) -> bytes:
     """`mcaplog.channels.pose_in_frame`, serialised."""
-    return _submessage(1, timestamp(t_s)) + _string(2, frame_id) + _submessage(3, _planar_pose(x, y, yaw))
+    position, orientation = _planar(x, y, yaw)
+    pose = _submessage(1, position) + _submessage(2, orientation)
+    return _submessage(1, timestamp(t_s)) + _string(2, frame_id) + _submessage(3, pose)
 
 
 def frame_transforms(t_s: float, links: list[tuple[str, str, float, float, float]]) -> bytes:
@@ -94,8 +96,7 @@ def frame_transforms(t_s: float, links: list[tuple[str, str, float, float, float
     stamp = _submessage(1, timestamp(t_s))
     out = b""
     for parent, child, x, y, yaw in links:
-        translation = _double(1, x) + _double(2, y)
-        rotation = _double(3, math.sin(yaw / 2)) + _double(4, math.cos(yaw / 2))
+        translation, rotation = _planar(x, y, yaw)
         transform = stamp + _string(2, parent) + _string(3, child)
         out += _submessage(1, transform + _submessage(4, translation) + _submessage(5, rotation))
     return out

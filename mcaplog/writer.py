@@ -33,8 +33,8 @@ from mcap.records import (
     Statistics,
     SummaryOffset,
 )
+from mcap.writer import MCAP0_MAGIC
 
-MAGIC = b"\x89MCAP0\r\n"
 _MESSAGE = struct.Struct("<BQHIQQ")
 """A message record's opcode, length, channel id, sequence, log time and publish time (the data follows)."""
 _MESSAGE_FIELDS = 2 + 4 + 8 + 8
@@ -62,7 +62,6 @@ class McapWriter:
         self._metadata_indexes: list[MetadataIndex] = []
         self._chunk_indexes: list[ChunkIndex] = []
         self._message_counts: dict[int, int] = {}
-        self._message_count = 0
         self._time_span: tuple[int, int] | None = None  # the messages' first and last log time so far
         self._new_chunk()
 
@@ -72,9 +71,6 @@ class McapWriter:
         self._chunk_start = 1 << 64
         self._chunk_end = -1
 
-    def _write(self, data: bytes | bytearray) -> None:
-        self._stream.write(data)
-
     @property
     def _offset(self) -> int:
         """Where the next record starts: the stream's own position (one write is one call, so an
@@ -82,8 +78,8 @@ class McapWriter:
         return self._stream.tell()
 
     def start(self, profile: str = "", library: str = "") -> None:
-        self._write(MAGIC)
-        self._write(_record(Header(profile=profile, library=library)))
+        self._stream.write(MCAP0_MAGIC)
+        self._stream.write(_record(Header(profile=profile, library=library)))
 
     def register_schema(self, name: str, encoding: str, data: bytes) -> int:
         """A new schema's id (from 1)."""
@@ -129,7 +125,7 @@ class McapWriter:
         """A metadata record (written at once, between chunks) and its index."""
         record = _record(Metadata(name=name, metadata=data))
         self._metadata_indexes.append(MetadataIndex(offset=self._offset, length=len(record), name=name))
-        self._write(record)
+        self._stream.write(record)
 
     def _finish_chunk(self) -> None:
         """Write the chunk (if it holds any message), its message indexes, and note its chunk index. The chunk
@@ -163,8 +159,8 @@ class McapWriter:
             at += len(part)
             parts.append(part)
             counts[channel_id] = len(pairs) // 2
-        self._write(chunk)
-        self._write(b"".join(parts))
+        self._stream.write(chunk)
+        self._stream.write(b"".join(parts))
         self._chunk_indexes.append(
             ChunkIndex(
                 message_start_time=start,
@@ -180,7 +176,6 @@ class McapWriter:
         )
         for channel_id, count in counts.items():
             self._message_counts[channel_id] = self._message_counts.get(channel_id, 0) + count
-        self._message_count += sum(counts.values())
         first, last = self._time_span or (start, end)
         self._time_span = (min(first, start), max(last, end))
 
@@ -188,11 +183,11 @@ class McapWriter:
         """The last chunk, the data end, the summary (schemas, channels, statistics, chunk and metadata
         indexes, each group's offset), the footer and the closing magic."""
         self._finish_chunk()
-        self._write(_record(DataEnd(data_section_crc=0)))
+        self._stream.write(_record(DataEnd(data_section_crc=0)))
         summary_start = self._offset
         first, last = self._time_span or (0, 0)
         statistics = Statistics(
-            message_count=self._message_count,
+            message_count=sum(self._message_counts.values()),
             schema_count=len(self._schemas),
             channel_count=len(self._channels),
             attachment_count=0,
@@ -223,8 +218,8 @@ class McapWriter:
             summary += _record(offset)
         crc = zlib.crc32(summary)
         crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 8 + 8 + 4, summary_start, summary_offset_start), crc)
-        self._write(summary)
-        self._write(
+        self._stream.write(summary)
+        self._stream.write(
             _record(Footer(summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=crc))
         )
-        self._write(MAGIC)
+        self._stream.write(MCAP0_MAGIC)
