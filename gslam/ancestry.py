@@ -21,6 +21,7 @@ class AncestryTree:
         self._hop_levels: list[int] = []  # levels whose parents are not the identity, increasing
         self._hop_parents: list[np.ndarray] = []
         self._current: np.ndarray | None = None  # node index at the last level, per particle
+        self._identity = True  # whether _current is 0, 1, ..., N-1 (no resampling since the last level)
         self._last_lineage = np.empty(0, dtype=np.intp)  # the last `lineage` computed (levels never change)
 
     def __len__(self) -> int:
@@ -38,18 +39,21 @@ class AncestryTree:
         if self._len == len(self._times_s):  # grow by doubling: amortised O(N) per level
             self._poses = np.concatenate([self._poses, np.empty_like(self._poses)])
             self._times_s = np.concatenate([self._times_s, np.empty_like(self._times_s)])
-        if self._current is not None and not np.array_equal(self._current, np.arange(n)):
+        if not self._identity:
             self._hop_levels.append(self._len)
             self._hop_parents.append(np.asarray(self._current, dtype=np.int32))
         self._times_s[self._len] = float(t_s)
         self._poses[self._len] = poses
         self._len += 1
-        self._current = np.arange(n)
+        if not self._identity or self._current is None:
+            self._current = np.arange(n)
+            self._identity = True
 
     def continue_from(self, parent_indices: np.ndarray) -> None:
         """After resampling: new particle i continues the history of old particle parent_indices[i]."""
         assert self._current is not None, "record a level before resampling"
         self._current = self._current[np.asarray(parent_indices)]
+        self._identity = bool(np.array_equal(self._current, np.arange(len(self._current))))
 
     def lineage(self, node: int) -> np.ndarray:
         """The node index, at every level, of the history of the last level's `node` (T,).

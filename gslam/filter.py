@@ -12,7 +12,7 @@ import numpy as np
 from gslam import mapupdate
 from gslam.ancestry import AncestryTree
 from gslam.config import FilterConfig
-from gslam.motion import wrap_angle
+from gslam.motion import wrap_angle, wrap_angle_scalar
 from gslam.pointmap import PointMap, distinct_maps
 from gslam.resampling import continue_from_parents, effective_sample_size, reweight_and_resample
 from gslam.scan import Scan
@@ -71,6 +71,8 @@ class GSlamFilter:
             self.poses[:, :2] += self.rng.standard_normal((n, 2)) * cfg.initial_sigma_xy_m
             self.poses[:, 2] = wrap_angle(self.poses[:, 2] + self.rng.standard_normal(n) * cfg.initial_sigma_phi_rad)
         self.weights = np.full(n, 1.0 / n)
+        self._summary_of: np.ndarray | None = None  # the weights `_summary` is of
+        self._summary = (float(n), 0)
         self.maps: list[PointMap] = [PointMap.empty()] * n  # one shared empty map (copy-on-write)
         self._points_total = 0  # points in all the maps (they change only at updates)
         self._layout: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
@@ -92,6 +94,15 @@ class GSlamFilter:
     # ------------------------------------------------------------------------------------------
     def best_particle(self) -> int:
         return int(np.argmax(self.weights))
+
+    def _weights_summary(self) -> tuple[float, int]:
+        """(effective sample size, best particle) of the weights, kept until the weights are replaced (they
+        change at updates only, and are always replaced, never written in place)."""
+        w = self.weights
+        if self._summary_of is not w:
+            self._summary = (effective_sample_size(w), self.best_particle())
+            self._summary_of = w
+        return self._summary
 
     def best_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         return self.tree.trajectory(self.best_particle())
@@ -132,20 +143,21 @@ class GSlamFilter:
                 self.poses = sampled
             else:
                 self.poses = predict(self.poses, self.rng)
-            before = self._filled[0].copy()
+            x0, y0, phi0 = self._filled[0].tolist()
             self._filled = predict(self._filled, None)
-            self._travel_m += float(np.hypot(*(self._filled[0, :2] - before[:2])))
-            self._turn_rad += abs(float(wrap_angle(self._filled[0, 2] - before[2])))
+            x1, y1, phi1 = self._filled[0].tolist()
+            self._travel_m += float(np.hypot(x1 - x0, y1 - y0))
+            self._turn_rad += abs(wrap_angle_scalar(phi1 - phi0))
         if not self._due():
             recorded = self._filled if cfg.fill_skipped == "odometry" else self.poses
             self.tree.record(scan.t_s, recorded)
             self.steps += 1
-            best = self.best_particle()
+            ess, best = self._weights_summary()
             return StepResult(
                 scan.t_s,
                 self.poses.copy(),
                 self.weights.copy(),
-                effective_sample_size(self.weights),
+                ess,
                 False,
                 False,
                 best,

@@ -17,6 +17,9 @@ from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from foxglove_schemas_protobuf.PosesInFrame_pb2 import PosesInFrame
 from google.protobuf.timestamp_pb2 import Timestamp
 
+from mcaplog import wire
+from mcaplog.wire import seconds_nanos
+
 # ---- input channels ---------------------------------------------------------------------------
 LASER = "/laser/scan"
 ODOM_ACKERMANN = "/vehicle/odometry"  # Sydney logs: rear-left wheel speed and steering angle
@@ -132,12 +135,6 @@ STATS_SCHEMA: dict[str, Any] = {
 }
 
 
-def seconds_nanos(t_s: float) -> tuple[int, int]:
-    """A time in seconds as a Timestamp's whole seconds and nanoseconds (rounded, below one second)."""
-    sec = math.floor(t_s)
-    return int(sec), min(int(round((t_s - sec) * 1e9)), 999_999_999)
-
-
 def timestamp(t_s: float) -> Timestamp:
     ts = Timestamp()
     ts.seconds, ts.nanos = seconds_nanos(t_s)
@@ -237,14 +234,12 @@ def poses_in_frame_bytes(t_s: float, poses: np.ndarray, frame_id: str) -> bytes:
     """A serialised foxglove.PosesInFrame of `poses` ((K, 3): x, y, heading), encoded with numpy for all
     poses at once (building the message objects pose by pose cost more than the filter on long logs)."""
     poses = np.asarray(poses, dtype=float).reshape(-1, 3)
-    head = PosesInFrame(frame_id=frame_id)
-    head.timestamp.CopyFrom(timestamp(t_s))
     buf = bytearray(_POSE_RECORD_BYTES * len(poses))  # the records' tags and zeros, written through `rec`
     rec = np.frombuffer(buf, dtype=_POSE_FIELDS)
     half = poses[:, 2] / 2
     rec["x"], rec["y"], rec["qz"], rec["qw"] = poses[:, 0], poses[:, 1], np.sin(half), np.cos(half)
     # Serialised messages concatenate as a merge: repeated fields append.
-    return head.SerializeToString() + bytes(buf)
+    return wire.head(t_s, frame_id) + bytes(buf)
 
 
 def poses_of(msg: PosesInFrame) -> np.ndarray:

@@ -304,12 +304,19 @@ def _chunk_messages(f: Any, chunk_index: Any, channel_ids: set[int]) -> list[tup
 
 
 _PROTO_DECODERS: dict[tuple[str, bytes], Any] = {}
+_SCHEMA_DECODERS: dict[int, tuple[Any, Any]] = {}  # id(schema) -> (schema, its decoder): one lookup a message
 
 
 def _decode_proto(schema, data: bytes):
+    known = _SCHEMA_DECODERS.get(id(schema))
+    if known is not None and known[0] is schema:
+        return known[1](data)
     key = (schema.name, bytes(schema.data))
     dec = _PROTO_DECODERS.get(key)
     if dec is None:
         dec = DecoderFactory().decoder_for(MessageEncoding.Protobuf, schema)
         _PROTO_DECODERS[key] = dec
+    if len(_SCHEMA_DECODERS) > 256:  # files read one after another (a benchmark's): forget the old ones
+        _SCHEMA_DECODERS.clear()
+    _SCHEMA_DECODERS[id(schema)] = (schema, dec)  # the schema kept alive, so its id is not reused
     return dec(data)

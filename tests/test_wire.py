@@ -46,3 +46,11 @@ def test_a_transform_decodes_to_its_links() -> None:
     assert (tf.timestamp.seconds, tf.timestamp.nanos) == (5, 250_000_000)
     assert (tf.translation.x, tf.translation.y, tf.translation.z) == (1.5, -2.0, 0.0)
     assert math.isclose(2 * math.atan2(tf.rotation.z, tf.rotation.w), 0.3)
+
+
+def test_links_that_differ_only_in_a_signed_zero_keep_their_own_bytes() -> None:
+    """A link with a zero in its pose is kept once encoded (a mount's, the same at every step): +0.0 is left
+    out on the wire and -0.0 written, so the two must not share the kept bytes."""
+    for x, yaw in [(0.0, 0.0), (-0.0, 0.0), (0.0, -0.0), (0.0, 0.0), (0.25, -0.0), (0.25, 0.0)]:
+        links = [("base_link", "laser", x, 0.0, yaw)]
+        assert wire.frame_transforms(7.5, links) == ch.frame_transforms(7.5, links).SerializeToString()

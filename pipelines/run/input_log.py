@@ -183,7 +183,7 @@ class InputLog:
 
 def _finite(*values: Any) -> list[float]:
     out = [float(v) for v in values]
-    if not all(math.isfinite(v) for v in out):
+    if not all(map(math.isfinite, out)):
         raise ValueError(f"non-finite value in {out}")
     return out
 
