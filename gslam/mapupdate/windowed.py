@@ -538,7 +538,7 @@ class WindowedUpdate:
             workspace=self.workspace,
             **kernel_options(cfg),
         )
-        new_maps = [PointMap(out_xy[a:b], out_p[a:b]) for a, b in bounds]
+        new_maps = [PointMap(out_xy[a:b], out_p[a:b]) for a, b in bounds.tolist()]  # int slices: 2x faster
         new_layout = (out_xy, out_p, bounds[:, 0].copy(), bounds[:, 1].copy())
         self.workspace.release(xy, p)  # the maps before this update: written to again when free
         return new_maps, new_layout, log_like, int((bounds[:, 1] - bounds[:, 0]).sum())

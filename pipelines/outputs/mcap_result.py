@@ -44,7 +44,8 @@ class McapResultWriter:
         self.writer: AtomicMcapWriter | None = None
         self.last_ns = 0
         self.steps_written = 0
-        self._update_levels: list[int] = []  # steps at which the map was updated
+        self._update_levels = np.empty(1024, dtype=np.intp)  # steps at which the map was updated, in [:_updates]
+        self._updates = 0
 
     def start(self, run: RunStart) -> None:
         self.geometry = run.log.geometry
@@ -131,9 +132,13 @@ class McapResultWriter:
         """/slam/path: the best particle's path as it stands at this update (earlier poses move as the
         particle's history is corrected), at the updates so far and this step (`path_levels`)."""
         level = len(flt.tree) - 1
-        self._update_levels.append(level)
+        if self._updates == len(self._update_levels):  # grown by doubling: not a list turned into an array each time
+            self._update_levels = np.concatenate([self._update_levels, np.empty_like(self._update_levels)])
+        self._update_levels[self._updates] = level
+        self._updates += 1
         # The step's best particle is node `best` of the level it recorded (resampling came after).
-        _, poses = flt.tree.node_trajectory(st.result.best, path_levels(self._update_levels, level))
+        levels = path_levels(self._update_levels[: self._updates], level)
+        _, poses = flt.tree.node_trajectory(st.result.best, levels)
         msg = ch.poses_in_frame_bytes(st.event.stamp_s, poses, ch.MAP_FRAME)
         self.writer.write_proto_bytes(ch.SLAM_PATH, ch.PosesInFrame, msg, ns)
 
