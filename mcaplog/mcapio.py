@@ -101,6 +101,12 @@ class AtomicMcapWriter:
         channel = self._json_channel(topic, schema_name, schema)
         self._add(channel, topic, log_time_ns, json.dumps(obj, separators=(",", ":")).encode())
 
+    def write_json_bytes(
+        self, topic: str, schema_name: str, schema: dict[str, Any], data: bytes, log_time_ns: int
+    ) -> None:
+        """Write an already encoded JSON message (`write_json`'s bytes) with a JSON schema of the project's own."""
+        self._add(self._json_channel(topic, schema_name, schema), topic, log_time_ns, data)
+
     def add_metadata(self, name: str, data: dict[str, Any]) -> None:
         """MCAP metadata record; values that are not strings are stored as JSON."""
         self._writer.add_metadata(name, {k: v if isinstance(v, str) else json.dumps(v) for k, v in data.items()})

@@ -67,24 +67,19 @@ class McapResultWriter:
         self.steps_written += 1  # the trajectory in finish() covers exactly the poses written
         particles = ch.poses_in_frame_bytes(st.event.stamp_s, r.poses, ch.MAP_FRAME)
         w.write_proto_bytes(ch.SLAM_PARTICLES, ch.PosesInFrame, particles, ns)
-        w.write_json(
-            ch.SLAM_STATS,
-            "gslam.StepStats",
-            ch.STATS_SCHEMA,
-            {
-                "scan_index": st.event.index,
-                "t_s": st.event.t_s,
-                "effective_sample_size": r.effective_sample_size,
-                "resampled": r.resampled,
-                "updated": r.updated,
-                "map_points": r.map_points,
-                "map_points_total": r.map_points_total,
-                "step_ms": st.step_ms,
-                "best_particle": r.best,
-                "matched": r.matched,
-            },
-            ns,
+        stats = ch.step_stats_json(
+            st.event.index,
+            st.event.t_s,
+            r.effective_sample_size,
+            r.resampled,
+            r.updated,
+            r.map_points,
+            r.map_points_total,
+            st.step_ms,
+            r.best,
+            r.matched,
         )
+        w.write_json_bytes(ch.SLAM_STATS, "gslam.StepStats", ch.STATS_SCHEMA, stats, ns)
         if r.updated and len(flt.tree):
             self._path(st, flt, ns)
         if self.snapshot_every and st.event.index % self.snapshot_every == 0:
