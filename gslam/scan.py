@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from gslam.motion import wrap_angle
 
@@ -82,15 +83,32 @@ def inverse_measure(poses: np.ndarray, range_m: np.ndarray, bearing_rad: np.ndar
 
 
 def window_boxes(
-    poses: np.ndarray, ex: np.ndarray, ey: np.ndarray, margin_m: float
+    poses: np.ndarray, ends_sensor: np.ndarray, margin_m: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(x0, y0, x1, y1), each (N,): the box of each pose and its returns' end points (ex, ey: (N, K), world
-    frame), grown by `margin_m`: the window the compiled kernels work in."""
-    x0 = np.minimum(ex.min(axis=1, initial=np.inf), poses[:, 0]) - margin_m
-    y0 = np.minimum(ey.min(axis=1, initial=np.inf), poses[:, 1]) - margin_m
-    x1 = np.maximum(ex.max(axis=1, initial=-np.inf), poses[:, 0]) + margin_m
-    y1 = np.maximum(ey.max(axis=1, initial=-np.inf), poses[:, 1]) + margin_m
-    return x0, y0, x1, y1
+    """(x0, y0, x1, y1), each (N,): the box of each pose and its returns' end points (`ends_sensor` (K, 2) in
+    the sensor's frame, placed at each pose), grown by `margin_m`: the window the compiled kernels work in.
+    Compiled, one pass per pose (ten N x K array expressions cost ~0.1 ms an update)."""
+    poses = np.ascontiguousarray(poses, dtype=float)
+    ends = np.ascontiguousarray(ends_sensor, dtype=float).reshape(-1, 2)
+    boxes = _window_boxes(poses, np.cos(poses[:, 2]), np.sin(poses[:, 2]), ends, float(margin_m))
+    return boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3]
+
+
+@njit(cache=True)
+def _window_boxes(poses, cos_phi, sin_phi, ends, margin_m):  # pragma: no cover - compiled
+    """`window_boxes`: the end point x + c ex - s ey, y + s ex + c ey, as the array expressions it replaced,
+    in their order, so the same numbers."""
+    out = np.empty((poses.shape[0], 4))
+    for i in range(poses.shape[0]):
+        px, py, c, s = poses[i, 0], poses[i, 1], cos_phi[i], sin_phi[i]
+        x0, y0, x1, y1 = np.inf, np.inf, -np.inf, -np.inf
+        for j in range(ends.shape[0]):
+            x = px + c * ends[j, 0] - s * ends[j, 1]
+            y = py + s * ends[j, 0] + c * ends[j, 1]
+            x0, y0, x1, y1 = min(x0, x), min(y0, y), max(x1, x), max(y1, y)
+        out[i, 0], out[i, 1] = min(x0, px) - margin_m, min(y0, py) - margin_m
+        out[i, 2], out[i, 3] = max(x1, px) + margin_m, max(y1, py) + margin_m
+    return out
 
 
 def transform_points(pose: np.ndarray, pts: np.ndarray) -> np.ndarray:

@@ -37,6 +37,7 @@ import numpy as np
 from numba import njit, prange
 
 from gslam.pointmap import MAP_DTYPE
+from gslam.scan import window_boxes
 from gslam.workqueue import next_index
 
 _EMPTY = -1
@@ -670,28 +671,6 @@ def _every(stride: int, arrays: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...
     return arrays if k == 1 else tuple(np.ascontiguousarray(a[::k]) for a in arrays)
 
 
-@njit(cache=True)
-def _windows(poses, cos_phi, sin_phi, ends, margin_m, cell_m):  # pragma: no cover - compiled
-    """Each particle's raster (x0, y0, columns, rows): the box of its pose and its end points (`ends` in
-    the sensor frame, placed at the pose), grown by `margin_m` (`gslam.scan.window_boxes`). The operations
-    of the array expressions this replaces, in their order, so the same numbers."""
-    n = poses.shape[0]
-    out = np.empty((n, 4))
-    for i in range(n):
-        px, py, c, s = poses[i, 0], poses[i, 1], cos_phi[i], sin_phi[i]
-        x0, y0, x1, y1 = np.inf, np.inf, -np.inf, -np.inf
-        for j in range(ends.shape[0]):
-            x = px + c * ends[j, 0] - s * ends[j, 1]
-            y = py + s * ends[j, 0] + c * ends[j, 1]
-            x0, y0, x1, y1 = min(x0, x), min(y0, y), max(x1, x), max(y1, y)
-        x0, y0 = min(x0, px) - margin_m, min(y0, py) - margin_m
-        x1, y1 = max(x1, px) + margin_m, max(y1, py) + margin_m
-        out[i, 0], out[i, 1] = x0, y0
-        out[i, 2] = math.ceil((x1 - x0) / cell_m) + 1
-        out[i, 3] = math.ceil((y1 - y0) / cell_m) + 1
-    return out
-
-
 def match_and_weigh(
     map_xy: np.ndarray,
     map_p: np.ndarray,
@@ -752,8 +731,10 @@ def match_and_weigh(
     rng = np.hypot(ends[:, 0], ends[:, 1])
     if len(ends) == 0:
         return poses.copy(), np.zeros(n), np.zeros(n), np.zeros(n, dtype=np.int64)
-    windows = _windows(poses, np.cos(poses[:, 2]), np.sin(poses[:, 2]), ends, float(margin_m), float(cell_m))
-    nx, ny = windows[:, 2], windows[:, 3]
+    x0, y0, x1, y1 = window_boxes(poses, ends, margin_m)
+    nx = np.ceil((x1 - x0) / cell_m) + 1
+    ny = np.ceil((y1 - y0) / cell_m) + 1
+    windows = np.column_stack([x0, y0, nx, ny])
     sizes = (map_hi - map_lo) if n else np.zeros(0, dtype=np.int64)
     f = max(1, int(coarse_factor))
     depth = max(1, int(coarse_depth)) if f > 1 else 0

@@ -98,8 +98,7 @@ class AtomicMcapWriter:
         self, topic: str, schema_name: str, schema: dict[str, Any], obj: dict[str, Any], log_time_ns: int
     ) -> None:
         """Write a JSON message with a JSON schema of the project's own."""
-        channel = self._json_channel(topic, schema_name, schema)
-        self._add(channel, topic, log_time_ns, json.dumps(obj, separators=(",", ":")).encode())
+        self.write_json_bytes(topic, schema_name, schema, json.dumps(obj, separators=(",", ":")).encode(), log_time_ns)
 
     def write_json_bytes(
         self, topic: str, schema_name: str, schema: dict[str, Any], data: bytes, log_time_ns: int

@@ -34,7 +34,7 @@ from gslam.config import FilterConfig
 from gslam.mapupdate.noise import NoiseDraws
 from gslam.motion import wrap_angle_scalar
 from gslam.pointmap import MAP_DTYPE, PointMap
-from gslam.scan import Scan
+from gslam.scan import Scan, window_boxes
 from gslam.workqueue import next_index
 
 
@@ -337,31 +337,14 @@ def window_cells(
     size of the cell arrays. A scan seen over half a turn fills half the square of twice its range."""
     if len(poses) == 0:
         return 1
-    poses = np.ascontiguousarray(poses, dtype=float)
     ranges_m = np.asarray(ranges_m, dtype=float)
-    bearings_rad = np.asarray(bearings_rad, dtype=float)
-    ex, ey = ranges_m * np.cos(bearings_rad), ranges_m * np.sin(bearings_rad)  # in the sensor's frame
-    return int(_window_cells(poses, ex, ey, float(margin_m), float(cell_m)))
-
-
-@njit(cache=True)
-def _window_cells(poses, ex, ey, margin_m, cell_m):  # pragma: no cover - compiled
-    """`window_cells` with the end points rotated into each pose's frame. The kernel places them with its
-    own rounding (a cosine of the heading plus the bearing): the ulps between the two are far inside the
-    row and column of slack either way."""
-    most = 1.0
-    for i in range(poses.shape[0]):
-        px, py = poses[i, 0], poses[i, 1]
-        c, s = math.cos(poses[i, 2]), math.sin(poses[i, 2])
-        x0, y0, x1, y1 = px, py, px, py
-        for j in range(ex.shape[0]):
-            x = px + c * ex[j] - s * ey[j]
-            y = py + s * ex[j] + c * ey[j]
-            x0, y0, x1, y1 = min(x0, x), min(y0, y), max(x1, x), max(y1, y)
-        nx = math.floor((x1 - x0 + 2.0 * margin_m) / cell_m) + 4  # the kernel aligns x0 down to a cell edge
-        ny = math.floor((y1 - y0 + 2.0 * margin_m) / cell_m) + 4
-        most = max(most, nx * ny)
-    return most
+    ends = np.column_stack([ranges_m * np.cos(bearings_rad), ranges_m * np.sin(bearings_rad)])  # sensor frame
+    # The kernel places the end points with its own rounding (a cosine of heading plus bearing): the ulps
+    # between the two are far inside the row and column of slack either way.
+    x0, y0, x1, y1 = window_boxes(poses, ends, margin_m)
+    nx = np.floor((x1 - x0) / cell_m) + 4  # the kernel aligns x0 down to a cell edge: at most one more
+    ny = np.floor((y1 - y0) / cell_m) + 4
+    return int((nx * ny).max())
 
 
 def update_maps(
