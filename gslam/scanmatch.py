@@ -36,6 +36,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from gslam.fastmath import fast_exp
 from gslam.pointmap import MAP_DTYPE
 from gslam.scan import window_boxes
 from gslam.workqueue import next_index
@@ -172,7 +173,7 @@ def _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, inv_
             return -1.0  # cannot reach `beat`
         d2, line = _return_d2(pose, c, s, ends, dirs, j, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2)
         if d2 >= 0.0:
-            total += math.exp(-d2 * (inv_line if line else inv_2s2[j]))
+            total += fast_exp(-d2 * (inv_line if line else inv_2s2[j]))
     return total
 
 
@@ -266,6 +267,15 @@ def _rasterise_pyramid(
     return used
 
 
+@njit(cache=True, inline="always")
+def _scored(cand, seen_pose, seen_score, seen):
+    """The index of `cand` among the first `seen` poses the climb scored (exactly equal), or -1."""
+    for e in range(seen):
+        if seen_pose[e, 0] == cand[0] and seen_pose[e, 1] == cand[1] and seen_pose[e, 2] == cand[2]:
+            return e
+    return -1
+
+
 @njit(cache=True)
 def _climb(
     pose,
@@ -289,24 +299,32 @@ def _climb(
 ):
     """Hill-climb `pose` (in place) on the score: one step forwards and backwards in x, y and phi, move to
     the best while it improves, halve the steps when it does not, `levels` times (GMapping's
-    `ScanMatcher::optimize`). Returns the score at the final pose."""
+    `ScanMatcher::optimize`). Returns the score at the final pose.
+
+    A pose the climb has scored before is not scored again: the way back to the pose just left, a
+    neighbour of an earlier pose (a move in x then y then back in x), a step of an earlier level reached
+    by two of the next. Each scored pose's result is kept (the score, or -1 where it stopped below the
+    best so far, which never decreases: it cannot win later either), keyed by the pose's exact numbers
+    (the lattice of poses meets the raster's cell edges, so a pose one unit in the last place away is
+    scored anew)."""
     current = _score(
         pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line, -np.inf
     )
+    seen_pose = np.empty((1 + 6 * max_iter, 3))
+    seen_score = np.empty(1 + 6 * max_iter)
+    seen_pose[0, 0], seen_pose[0, 1], seen_pose[0, 2] = pose[0], pose[1], pose[2]
+    seen_score[0] = current
+    seen = 1
     best = -1.0
     refinement = 0
     cand = np.empty(3)
-    back = -1  # the move back to the pose just left (`left`): it scored below the current pose
-    left = pose.copy()
     for _ in range(max_iter):
         if best >= current:
             refinement += 1
             step_xy *= 0.5
             step_phi *= 0.5
-            back = -1
         best = current
         best_local = pose.copy()
-        chosen = -1
         for move in range(6):
             cand[0], cand[1], cand[2] = pose[0], pose[1], pose[2]
             if move == 0:
@@ -321,20 +339,21 @@ def _climb(
                 cand[2] += step_phi
             else:
                 cand[2] -= step_phi
-            if move == back and cand[0] == left[0] and cand[1] == left[1] and cand[2] == left[2]:
-                continue  # its score is known, below the current one (only when the move back lands
-                # exactly on it: the pose lattice meets the raster's cell edges, so a rounding off by one
-                # unit in the last place can change a score)
-            s = _score(
-                cand, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line, current
-            )
+            e = _scored(cand, seen_pose, seen_score, seen)
+            if e >= 0:
+                s = seen_score[e]
+            else:
+                s = _score(
+                    cand, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line,
+                    current,
+                )  # fmt: skip
+                seen_pose[seen, 0], seen_pose[seen, 1], seen_pose[seen, 2] = cand[0], cand[1], cand[2]
+                seen_score[seen] = s
+                seen += 1
             if s > current:
                 current = s
                 best_local[:] = cand
-                chosen = move
-        left[:] = pose
         pose[:] = best_local
-        back = chosen ^ 1 if chosen >= 0 else -1  # moves come in pairs: 0/1 x, 2/3 y, 4/5 phi
         if not (current > best or refinement < levels):
             break
     return current
@@ -405,7 +424,7 @@ def _pass(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score
         tx, ty, t2 = _surface_line(second, k1, k2, mean_xy, pair_d2)
         if t2 > 0.0:
             d2 = _across_d2(ex, ey, k1, tx, ty, t2, mean_xy)
-            term = math.exp(-d2 * inv_line)
+            term = fast_exp(-d2 * inv_line)
             total += term
             inv_t = 1.0 / math.sqrt(t2)
             nxv, nyv = ty * inv_t, -tx * inv_t  # the line's unit normal
@@ -423,7 +442,7 @@ def _pass(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score
             g2 += om * j2 * d
         else:
             d2 = best
-            term = math.exp(-d2 * score_inv[j])
+            term = fast_exp(-d2 * score_inv[j])
             total += term
             rx = ex - mean_xy[k1, 0]
             ry = ey - mean_xy[k1, 1]

@@ -53,9 +53,16 @@ class _Share:
     def __init__(self, rows: np.ndarray) -> None:
         self.rows = rows
 
-    def standard_normal(self, dtype=None, out=None):
-        assert dtype == np.float32 and out is not None and out.shape == self.rows.shape
+    def fill(self, out: np.ndarray) -> None:
+        assert out.dtype == np.float32 and out.shape == self.rows.shape
         out[...] = self.rows
+
+
+def _windowed(cfg: FilterConfig) -> windowed.WindowedUpdate:
+    """The compiled update, its new points' noise taken from the `_Draws` stand-in."""
+    update = windowed.WindowedUpdate(cfg, 1)
+    update.noise.fill = lambda share, out: share.fill(out)
+    return update
 
 
 class _Recording:
@@ -90,9 +97,7 @@ def test_the_two_implementations_agree_on_a_scan_inside_the_window():
     cfg = FilterConfig(particles=2)
     assert windowed.supports(cfg) and isinstance(select(cfg), windowed.WindowedUpdate)
     maps, poses, scan, noise, matched = _state(cfg)
-    a_maps, a_layout, a_like, a_total = windowed.WindowedUpdate(cfg, 1)(
-        maps, distinct_maps(maps), poses, scan, _Draws(noise), matched
-    )
+    a_maps, a_layout, a_like, a_total = _windowed(cfg)(maps, distinct_maps(maps), poses, scan, _Draws(noise), matched)
     b_maps, b_layout, b_like, b_total = wholemap.WholeMapUpdate(cfg)(maps, None, poses, scan, _Draws(noise), matched)
     np.testing.assert_array_equal(a_like, b_like)  # the matcher's weight, the same in both
     assert a_layout is not None and b_layout is None
@@ -162,7 +167,7 @@ def test_no_setting_the_compiled_kernel_ignores_is_routed_to_it():
         ignored = numpy_cfg.read - declared
         assert not ignored, f"with {name} changed, the compiled update ignores {sorted(ignored)}"
         kernel_cfg = _Recording(cfg)
-        update = windowed.WindowedUpdate(cfg, 1)
+        update = _windowed(cfg)
         update.cfg = kernel_cfg
         update(maps, distinct_maps(maps), poses, scan, _Draws(noise), matched)
         assert kernel_cfg.read <= set(windowed.OPTIONS), (name, kernel_cfg.read - set(windowed.OPTIONS))

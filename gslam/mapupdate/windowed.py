@@ -31,6 +31,7 @@ import numpy as np
 from numba import njit, prange
 
 from gslam.config import FilterConfig
+from gslam.fastmath import fast_exp
 from gslam.mapupdate.noise import NoiseDraws
 from gslam.motion import wrap_angle_scalar
 from gslam.pointmap import MAP_DTYPE, PointMap
@@ -54,7 +55,7 @@ def _q(d, hit_sigma, hit_ratio, free_ratio, far):
     """q (eq. 6) of a point `d` metres beyond the return of its beam (negative: in front of it); beyond
     `far` (`far_z2`) the Gaussian bump is not computed, as it cannot change q."""
     z2 = (d / hit_sigma) ** 2
-    g = 0.0 if z2 > far else math.exp(-0.5 * z2)  # beyond `far`, g x the ratio difference rounds away
+    g = 0.0 if z2 > far else fast_exp(-0.5 * z2)  # beyond `far`, g x the ratio difference rounds away
     if d > 0.0:
         return 1.0 + (hit_ratio - 1.0) * g
     return free_ratio + (hit_ratio - free_ratio) * g
