@@ -268,7 +268,7 @@ def _rasterise_pyramid(
 
 
 @njit(cache=True, inline="always")
-def _scored(cand, seen_pose, seen_score, seen):
+def _scored(cand, seen_pose, seen):
     """The index of `cand` among the first `seen` poses the climb scored (exactly equal), or -1."""
     for e in range(seen):
         if seen_pose[e, 0] == cand[0] and seen_pose[e, 1] == cand[1] and seen_pose[e, 2] == cand[2]:
@@ -339,7 +339,7 @@ def _climb(
                 cand[2] += step_phi
             else:
                 cand[2] -= step_phi
-            e = _scored(cand, seen_pose, seen_score, seen)
+            e = _scored(cand, seen_pose, seen)
             if e >= 0:
                 s = seen_score[e]
             else:

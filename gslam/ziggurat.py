@@ -66,7 +66,7 @@ def fill_normals(words: np.ndarray, out: np.ndarray) -> int:
             x = (word >> np.uint32(9)) * WIDTH[i]
             if x < ACCEPT[i]:
                 break
-            if i == 0:  # the tail beyond R: x = R + e1 / R for exponentials e1, e2 with 2 e2 > e1^2 / R^2
+            if i == 0:  # the tail beyond R: x = R + E1 / R for exponentials E1, E2 with 2 E2 > (E1 / R)^2
                 while True:
                     if pos + 2 > count:
                         return t
