@@ -33,12 +33,16 @@ TF_TOPIC = "/tf"
 TF_STATIC_TOPIC = "/tf_static"
 BAG_SUFFIXES = (".bag", ".db3", ".mcap")
 MOUNT_SEARCH_S = 5.0
-MAX_BEAMS = 100_000
 """Seconds of /tf read at the start of the bag for transforms missing from /tf_static."""
+MAX_BEAMS = 100_000
 MAX_ODOM_GAP_S = 1.0
 """Scans between two odometry samples further apart than this are dropped (the motion is unknown)."""
 ANGLE_TOLERANCE_RAD = 1e-6
 """Tolerance on a scan's angles when checking them against its beam count and the first scan's."""
+PRINTED_ABS_RAD = 5e-7
+"""Rounding of an angle printed with 6 decimal places (pi/180 written 0.017453)."""
+PRINTED_REL = 5e-6
+"""Relative rounding of an angle printed with 6 significant digits (-1.56643); float32's (6e-8) is within."""
 
 
 class RosbagReader:
@@ -73,6 +77,46 @@ class ScanGeometryRos:
     range_min_m: float
     range_max_m: float
     frame: str
+
+
+def _printed(x: float) -> float:
+    """How far an angle may be from the true one when a converter printed it: rounded to 6 decimal places
+    or to 6 significant digits (both common), then stored as float32."""
+    return max(PRINTED_ABS_RAD, PRINTED_REL * abs(x))
+
+
+def beam_increment(n: int, a0: float, a1: float, inc: float) -> float | None:
+    """The increment of a LaserScan's n beams, or None when its angles contradict its ranges.
+
+    ROS puts beam k at angle_min + k angle_increment, and angle_max at the last beam; drivers disagree by
+    up to one increment on whether angle_max is inclusive (some write angle_min + n angle_increment), and
+    converters round the increment (Freiburg logs: pi/180 written 0.017453). A rounding of the increment
+    adds up over the beams, so the tolerance grows with their count: for m steps from angle_min to
+    angle_max, |a0 + m inc - a1| <= m r(inc) + r(a0) + r(a1), r the rounding of a printed angle
+    (`_printed`). It is capped at half an increment, where it would stop telling m from m +- 1, so a
+    message whose ranges are two or more beams off the count its angles make, or whose increment is 1 %
+    off over 180 beams (1.8 increments at angle_max on the last beam), is still refused.
+
+    The increment returned: when angle_max falls on the beams' grid (m = n - 1 or n steps, or n - 2, within
+    the rounding), (a1 - a0) / m. It is the accurate one: angle_min and angle_max are each rounded once,
+    while the increment's rounding is multiplied by the beam index (0.017453 for pi/180 puts beam 179 of
+    a Freiburg scan 5e-5 rad off; (a1 - a0) / 180 is within the rounding of angle_max), and for an exact
+    message it is the message's increment to float precision. When angle_max is off the grid (a driver
+    stating the edge of the last beam's sector, say) the message's increment is all there is.
+    """
+
+    def slack(m: int) -> float:
+        rounding = m * _printed(inc) + _printed(a0) + _printed(a1)
+        return min(rounding, abs(inc) / 2) + ANGLE_TOLERANCE_RAD
+
+    # angle_max within one increment of the last beam, plus the rounding (or the former allowance,
+    # 0.001 increment + ANGLE_TOLERANCE_RAD, when larger: no message accepted before is refused now).
+    if abs(a0 + (n - 1) * inc - a1) > abs(inc) + max(abs(inc) * 0.001 + ANGLE_TOLERANCE_RAD, slack(n)):
+        return None
+    for m in (n - 1, n, n - 2):
+        if m >= 1 and abs(a0 + m * inc - a1) <= slack(m):
+            return (a1 - a0) / m
+    return inc
 
 
 def _stamp_ns(header, bag_ns: int) -> int:
@@ -220,15 +264,15 @@ class BagStream:
     def _first_scan(self, reader) -> ScanGeometryRos:
         msg = self._first(reader, self.scan.topic)
         n = len(msg.ranges)
+        inc = self._check_scan(msg, 0)
         geom = ScanGeometryRos(
             n,
             float(msg.angle_min),
-            float(msg.angle_increment),
+            inc,
             float(msg.range_min),
             float(msg.range_max),
             frame_name(msg.header.frame_id),
         )
-        self._check_scan(msg, 0)
         if not (math.isfinite(geom.range_max_m) and geom.range_max_m > max(geom.range_min_m, 0.0)):
             raise IngestError(
                 f"{self.path}: {self.scan.topic} message 0: range_max {geom.range_max_m} m is not above "
@@ -236,7 +280,9 @@ class BagStream:
             )
         return geom
 
-    def _check_scan(self, msg, index: int) -> None:
+    def _check_scan(self, msg, index: int) -> float:
+        """Refuses a message whose angles contradict its ranges; returns the increment its beams are at
+        (`beam_increment`)."""
         where = f"{self.path}: {self.scan.topic} message {index}"
         n = len(msg.ranges)
         inc, a0, a1 = float(msg.angle_increment), float(msg.angle_min), float(msg.angle_max)
@@ -244,16 +290,16 @@ class BagStream:
             raise IngestError(f"{where}: {n} ranges; a scan needs at least 2 beams")
         if not (math.isfinite(inc) and inc != 0 and math.isfinite(a0) and math.isfinite(a1)):
             raise IngestError(f"{where}: angle_increment {inc} rad with angle_min {a0}, angle_max {a1} is not usable")
-        # ROS: beam k is at angle_min + k angle_increment, and angle_max is the last beam's angle. Drivers
-        # disagree by up to one increment on whether angle_max is inclusive; more is a broken message.
-        implied = (a1 - a0) / inc + 1
-        if abs(a0 + (n - 1) * inc - a1) > abs(inc) * 1.001 + ANGLE_TOLERANCE_RAD:
+        used = beam_increment(n, a0, a1, inc)
+        if used is None:
+            implied = (a1 - a0) / inc + 1
             raise IngestError(
                 f"{where}: angle_increment {inc:.6g} rad disagrees with the ranges: angle_min {a0:.6g} to "
                 f"angle_max {a1:.6g} rad makes {implied:.1f} beams, the message has {n} ranges"
             )
         if n > MAX_BEAMS:
             raise IngestError(f"{where}: {n} ranges; more than {MAX_BEAMS} beams is not a planar laser scan")
+        return used
 
     def _odometry_base(self, reader) -> str:
         if self.odom.count == 0:
@@ -359,10 +405,10 @@ class BagStream:
         try:
             for topic, index, bag_ns, msg in self._stream(reader, topics):
                 if topic == self.scan.topic:
-                    self._check_scan(msg, index)
+                    inc = self._check_scan(msg, index)
                     t_ns = _stamp_ns(msg.header, bag_ns)
                     span = (t_ns, t_ns) if span is None else (min(span[0], t_ns), max(span[1], t_ns))
-                    aligner.add_scan(t_ns, self._scan_record(msg, t_ns))
+                    aligner.add_scan(t_ns, self._scan_record(msg, inc, t_ns))
                 elif self.odom is not None:
                     p, tw = msg.pose.pose, msg.twist.twist
                     q = p.orientation
@@ -401,12 +447,12 @@ class BagStream:
                 f"{self.path}: {topic} message {counters[topic]}: unreadable, damaged or truncated bag ({_why(e)})"
             ) from None
 
-    def _scan_record(self, msg, t_ns: int) -> ScanRecord:
-        """The scan with its own beams (each message's angle_min, angle_increment and count: some lasers
-        interleave several geometries) and its own range limits."""
+    def _scan_record(self, msg, inc: float, t_ns: int) -> ScanRecord:
+        """The scan with its own beams (each message's angle_min, increment `inc` (`beam_increment`) and
+        count: some lasers interleave several geometries) and its own range limits."""
         g = self.geometry
         ranges = np.asarray(msg.ranges, dtype=float)
-        n, a0, inc = len(ranges), float(msg.angle_min), float(msg.angle_increment)
+        n, a0 = len(ranges), float(msg.angle_min)
         rmin, rmax = float(msg.range_min), float(msg.range_max)
         key = (n, round(a0, 9), round(inc, 12))
         self.geometry_counts[key] = self.geometry_counts.get(key, 0) + 1

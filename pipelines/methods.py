@@ -12,15 +12,26 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 if TYPE_CHECKING:
     import numpy as np
 
+    from gslam.config import FilterConfig
     from gslam.filter import SlamFilter
-    from pipelines.run.runner import RunConfig
 
-Builder = Callable[["RunConfig", "np.ndarray", float], "SlamFilter"]
+
+class BuildOptions(Protocol):
+    """What a builder reads of the run's options (`pipelines.run.runner.RunConfig` has them): named here
+    rather than imported, so that this registry sits below the runner that uses it."""
+
+    filter: FilterConfig
+    method: str
+    threads: int | None
+    grid_cells: int | None
+
+
+Builder = Callable[["BuildOptions", "np.ndarray", float], "SlamFilter"]
 """(the run's options, the initial pose, the range below which returns are ignored) -> the filter."""
 
 
@@ -35,7 +46,7 @@ class Method:
     """Whether M (new points per observation) applies: bench runs such a method for every (N, M)."""
 
 
-def _gslam(cfg: RunConfig, initial_pose: np.ndarray, min_range_m: float) -> SlamFilter:
+def _gslam(cfg: BuildOptions, initial_pose: np.ndarray, min_range_m: float) -> SlamFilter:
     import numba
 
     from gslam.filter import GSlamFilter
@@ -46,7 +57,7 @@ def _gslam(cfg: RunConfig, initial_pose: np.ndarray, min_range_m: float) -> Slam
 
 
 def _fastslam(version: int) -> Builder:
-    def build(cfg: RunConfig, initial_pose: np.ndarray, min_range_m: float) -> SlamFilter:
+    def build(cfg: BuildOptions, initial_pose: np.ndarray, min_range_m: float) -> SlamFilter:
         from gslam.baselines.fastslam import FastSlamConfig, FastSlamFilter
 
         fs = FastSlamConfig(
@@ -61,7 +72,7 @@ def _fastslam(version: int) -> Builder:
 
 
 def _grid(default_cells: int) -> Builder:
-    def build(cfg: RunConfig, initial_pose: np.ndarray, min_range_m: float) -> SlamFilter:
+    def build(cfg: BuildOptions, initial_pose: np.ndarray, min_range_m: float) -> SlamFilter:
         from gslam.baselines.grid_rbpf import GridConfig, GridSlam
 
         grid = GridConfig(
@@ -76,7 +87,7 @@ def _grid(default_cells: int) -> Builder:
     return build
 
 
-def _odometry(cfg: RunConfig, initial_pose: np.ndarray, min_range_m: float) -> SlamFilter:
+def _odometry(cfg: BuildOptions, initial_pose: np.ndarray, min_range_m: float) -> SlamFilter:
     from gslam.baselines.dead_reckoning import DeadReckoning
 
     return DeadReckoning(initial_pose)
@@ -102,7 +113,7 @@ def method(name: str) -> Method:
         raise ValueError(f"method must be one of {', '.join(NAMES)}, got {name!r}") from None
 
 
-def make_filter(cfg: RunConfig, initial_pose: np.ndarray, self_return_range_m: float = 0.0) -> SlamFilter:
+def make_filter(cfg: BuildOptions, initial_pose: np.ndarray, self_return_range_m: float = 0.0) -> SlamFilter:
     """The filter of `cfg.method`, sharing the particle count, seed and range limit of cfg.filter (or,
     when that is None, the input's `self_return_range_m`)."""
     min_range_m = cfg.filter.min_range_m if cfg.filter.min_range_m is not None else self_return_range_m

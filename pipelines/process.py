@@ -15,7 +15,7 @@ from gslam import __version__
 from pipelines.outputs.mcap_result import McapResultWriter
 from pipelines.outputs.rerun_result import RerunResultWriter
 from pipelines.outputs.writer import OccupancyMap, ResultWriter, RunEnd, RunStart
-from pipelines.outputs.writer_process import WriterProcess, usage
+from pipelines.outputs.writer_child import WriterChild, usage
 from pipelines.run import interrupts
 from pipelines.run.compile_time import COMPILING_NOTE, watching_compiles
 from pipelines.run.input_log import InputLog
@@ -59,7 +59,7 @@ class ProcessSummary:
 
 
 def peak_rss_mb() -> float:
-    """This process's peak resident memory so far (MB), its own (`writer_process.usage`)."""
+    """This process's peak resident memory so far (MB), its own (`writer_child.usage`)."""
     return usage()["peak_rss_mb"]
 
 
@@ -82,6 +82,43 @@ def _abort(writers: list[ResultWriter]) -> None:
         w.abort()
 
 
+@dataclass
+class _OpenRun:
+    """A run whose outputs are open: the input, the runner over it and the writers it feeds."""
+
+    log: InputLog
+    runner: SlamRunner
+    writers: list[ResultWriter]
+    cfg: RunConfig
+    output_path: Path
+    rrd_path: Path | None
+
+    @property
+    def written(self) -> str:
+        """The outputs, for the notes that say what was kept."""
+        return " and ".join(str(p) for p in (self.output_path, self.rrd_path) if p is not None)
+
+
+@dataclass
+class _StepTimes:
+    """What the steps took, and how the loop over them ended."""
+
+    step_ms: list[float] = dataclasses.field(default_factory=list)
+    """End to end, writers included, compile time left out."""
+    filter_ms: list[float] = dataclasses.field(default_factory=list)
+    update_ms: list[float] = dataclasses.field(default_factory=list)
+    scan_indices: list[int] = dataclasses.field(default_factory=list)
+    first_t: float | None = None
+    last_t: float | None = None
+    wall_s: float = 0.0
+    compile_s: float = 0.0
+    interrupted: bool = False
+    error: BaseException | None = None
+    """Why the steps stopped before the end (a signal or an error), re-raised once the outputs are finished."""
+    after_last_scan: KeyboardInterrupt | None = None
+    """A signal that came once every scan was processed: the run is whole; raised after the finish."""
+
+
 def process(
     input_path: Path,
     output_path: Path,
@@ -89,15 +126,37 @@ def process(
     cfg: RunConfig,
     progress: Callable[[int, int, float], None] | None = None,
     command: str | None = None,
-    rrd_writer: WriterProcess | None = None,
+    rrd_writer: WriterChild | None = None,
     notice: Callable[[str], None] | None = None,
 ) -> ProcessSummary:
     """Run the filter over `input_path` into the result MCAP `output_path` and the Rerun recording
-        `rrd_path` (None: none). Ctrl-C or an error mid-run still finishes the outputs with the steps done so
-        far (the error is re-raised after). `rrd_writer`: the recording's writer process, started beforehand
-        by `writer_process.start_rerun_writer` (aborted here if the run cannot start). `notice(text)` tells the
+    `rrd_path` (None: none). Ctrl-C or an error mid-run still finishes the outputs with the steps done so
+    far (the error is re-raised after). `rrd_writer`: the recording's child writer, started beforehand by
+    `writer_child.start_rerun_writer` (aborted here if the run cannot start). `notice(text)` tells the
     user why the run waits (the kernels' first compile, the occupancy grid); compile time is left out of
     the recorded step times and recorded as `compile_s`."""
+    run = _open(input_path, output_path, rrd_path, cfg, command, rrd_writer)
+    times = _run_steps(run, progress, notice)
+    summary = _finish(run, times, notice)
+    if times.after_last_scan is not None:
+        times.after_last_scan.add_note(f"wrote {run.written}: every scan was processed before the signal")
+        raise times.after_last_scan
+    if times.error is not None:
+        times.error.add_note(f"wrote {run.written} with the {summary.steps} steps done, marked interrupted")
+        raise times.error
+    return summary
+
+
+def _open(
+    input_path: Path,
+    output_path: Path,
+    rrd_path: Path | None,
+    cfg: RunConfig,
+    command: str | None,
+    rrd_writer: WriterChild | None,
+) -> _OpenRun:
+    """Open the input, build the runner and start every writer with the run's metadata; on any failure
+    every writer drops its file."""
     # The result MCAP first: the writers finish in reverse order, so that its record holds the figures
     # the others add to it.
     writers: list[ResultWriter] = [McapResultWriter(output_path, cfg.map_snapshot_every)]
@@ -109,39 +168,45 @@ def process(
         log = InputLog(input_path)
         skip_blas_probe()
         runner = SlamRunner(log, cfg)
-        metadata = {
-            "gslam": {"version": __version__, "command": command or " ".join(sys.argv), "method": cfg.method},
-            "config": cfg.as_dict(),
-            "input": {
-                "path": str(Path(input_path).resolve()),
-                "fingerprint": fingerprint(Path(input_path)),
-                "dataset": log.meta.get("dataset", {}).get("name", ""),
-                "sensor": log.meta.get("sensor", {}),
-                "vehicle": log.meta.get("vehicle", {}),
-            },
-            "initialisation": {
-                "pose": None if runner.initial_pose is None else runner.initial_pose.tolist(),
-                "t_s": runner.t_init_s,
-                "heading_window_s": cfg.init_heading_window_s,
-                "from_gps": runner.initialised_from_gps,
-            },
-        }
+        metadata = _run_metadata(input_path, log, runner, cfg, command)
         for w in writers:
             w.start(RunStart(log, metadata))
     except BaseException:
         _abort(writers)
         raise
+    return _OpenRun(log, runner, writers, cfg, Path(output_path), Path(rrd_path) if rrd_path else None)
+
+
+def _run_metadata(input_path: Path, log: InputLog, runner: SlamRunner, cfg: RunConfig, command: str | None) -> dict:
+    """What a result records of its run: the software, the command, the configuration, the input, the start."""
+    return {
+        "gslam": {"version": __version__, "command": command or " ".join(sys.argv), "method": cfg.method},
+        "config": cfg.as_dict(),
+        "input": {
+            "path": str(Path(input_path).resolve()),
+            "fingerprint": fingerprint(Path(input_path)),
+            "dataset": log.meta.get("dataset", {}).get("name", ""),
+            "sensor": log.meta.get("sensor", {}),
+            "vehicle": log.meta.get("vehicle", {}),
+        },
+        "initialisation": {
+            "pose": None if runner.initial_pose is None else runner.initial_pose.tolist(),
+            "t_s": runner.t_init_s,
+            "heading_window_s": cfg.init_heading_window_s,
+            "from_gps": runner.initialised_from_gps,
+        },
+    }
+
+
+def _run_steps(
+    run: _OpenRun, progress: Callable[[int, int, float], None] | None, notice: Callable[[str], None] | None
+) -> _StepTimes:
+    """Every scan through the filter and to the writers. A signal or an error ends the loop and is kept in
+    the times (not raised), so that the outputs are finished with the steps done."""
+    cfg, log = run.cfg, run.log
     total = log.scan_count if cfg.max_scans is None else min(cfg.max_scans, log.scan_count)
-    written = " and ".join(str(p) for p in (output_path, rrd_path) if p is not None)  # for the notes
-    step_ms: list[float] = []
-    filter_ms: list[float] = []
-    scan_indices: list[int] = []
-    update_ms: list[float] = []
-    interrupted = False
-    error: BaseException | None = None
-    after_last_scan: KeyboardInterrupt | None = None
+    times = _StepTimes()
     t_start = time.perf_counter()
-    first_t = last_t = None
     t_prev = t_start
 
     def compiling() -> None:
@@ -152,85 +217,110 @@ def process(
     try:
         with watching_compiles(compiling) as compile_watch:
             compiled_ms = 0.0  # numba compile time so far, taken out of the step it fell in
-            for st in runner.steps():
+            for st in run.runner.steps():
                 interrupts.check()  # a signal whose exception was swallowed on its way (interrupts.check)
                 spent_ms = compile_watch.total_s * 1e3 - compiled_ms
                 if spent_ms > 0:
                     compiled_ms += spent_ms
                     st = dataclasses.replace(st, step_ms=max(0.0, st.step_ms - spent_ms))
-                for w in writers:
-                    w.step(st, runner.output_filter)
+                for w in run.writers:
+                    w.step(st, run.runner.output_filter)
                 now = time.perf_counter()
-                step_ms.append(max(0.0, (now - t_prev) * 1e3 - max(spent_ms, 0.0)))
+                times.step_ms.append(max(0.0, (now - t_prev) * 1e3 - max(spent_ms, 0.0)))
                 t_prev = now
-                filter_ms.append(st.step_ms)
-                scan_indices.append(st.event.index)
+                times.filter_ms.append(st.step_ms)
+                times.scan_indices.append(st.event.index)
                 if st.result.updated:
-                    update_ms.append(st.step_ms)
-                first_t = st.event.t_s if first_t is None else first_t
-                last_t = st.event.t_s
+                    times.update_ms.append(st.step_ms)
+                times.first_t = st.event.t_s if times.first_t is None else times.first_t
+                times.last_t = st.event.t_s
                 if progress is not None:
                     progress(st.event.index + 1, total, st.step_ms)
             interrupts.hold()  # from here a signal waits for the outputs (a signal before it is caught below)
     except (KeyboardInterrupt, Exception) as e:  # SIGINT, SIGTERM (interrupts.Stopped) or an error
         interrupts.hold()
         interrupts.acknowledge()
-        if isinstance(e, KeyboardInterrupt) and len(filter_ms) >= total:
-            after_last_scan = e  # every scan was processed: the run is whole, finish it, then stop
+        if isinstance(e, KeyboardInterrupt) and len(times.filter_ms) >= total:
+            times.after_last_scan = e  # every scan was processed: the run is whole, finish it, then stop
         else:
-            interrupted = True
-            error = e
+            times.interrupted = True
+            times.error = e
+    times.wall_s = time.perf_counter() - t_start
+    times.compile_s = 0.0 if compile_watch is None else round(compile_watch.total_s, 3)
+    return times
+
+
+def _summary(run: _OpenRun, times: _StepTimes) -> ProcessSummary:
+    flt = run.runner.output_filter
+
+    def median(values: list[float]) -> float:
+        return float(np.median(values)) if values else float("nan")
+
+    def mean(values: list[float]) -> float:
+        return float(np.mean(values)) if values else float("nan")
+
+    return ProcessSummary(
+        steps=len(times.filter_ms),
+        scans_in_log=run.log.scan_count,
+        final_map_points=len(flt.map_points(flt.best_particle())[1]),
+        ms_per_step_median=median(times.step_ms),
+        ms_per_step_filter_median=median(times.filter_ms),
+        ms_per_step_filter_mean=mean(times.filter_ms),
+        updates=len(times.update_ms),
+        ms_per_update_mean=mean(times.update_ms),
+        ms_per_step_mean=mean(times.step_ms),
+        wall_s=times.wall_s,
+        log_duration_s=(times.last_t - times.first_t) if times.first_t is not None else 0.0,
+        interrupted=times.interrupted,
+        output=run.output_path,
+        rrd=run.rrd_path,
+    )
+
+
+def _result_metadata(run: _OpenRun, times: _StepTimes, summary: ProcessSummary) -> dict:
+    """What a result records of how its run went (the `result` metadata record)."""
+    cfg = run.cfg
+    return {
+        "steps": summary.steps,
+        "scans_in_log": run.log.scan_count,
+        "max_scans": cfg.max_scans,
+        "interrupted": times.interrupted,
+        "error": None if times.error is None else repr(times.error),
+        "ms_per_step_median": summary.ms_per_step_median,
+        "ms_per_step_filter_median": summary.ms_per_step_filter_median,
+        "ms_per_step_filter_mean": summary.ms_per_step_filter_mean,
+        "updates": summary.updates,
+        "ms_per_update_mean": summary.ms_per_update_mean,
+        "ms_per_step_mean": summary.ms_per_step_mean,
+        "wall_s": times.wall_s,
+        "log_duration_s": summary.log_duration_s,
+        "real_time_factor": summary.real_time_factor,
+        "final_map_points": summary.final_map_points,
+        "peak_rss_mb": peak_rss_mb(),
+        "compile_s": times.compile_s,
+        "particles": cfg.filter.particles,
+        "points_per_observation": cfg.filter.points_per_observation,
+    }
+
+
+def _finish(run: _OpenRun, times: _StepTimes, notice: Callable[[str], None] | None) -> ProcessSummary:
+    """Finish every output with the steps done (the result MCAP last, so that it records the others'
+    figures); a signal meanwhile waits for it. An output that cannot be finished is dropped, the others
+    kept, and its error raised."""
     errors: list[Exception] = []
     finished = False
     try:
         # A signal from here on waits for the outputs to be finished (a second one aborts them).
         with interrupts.deferred():
-            wall = time.perf_counter() - t_start
-            flt = runner.output_filter
-            summary = ProcessSummary(
-                steps=len(filter_ms),
-                scans_in_log=log.scan_count,
-                final_map_points=len(flt.map_points(flt.best_particle())[1]),
-                ms_per_step_median=float(np.median(step_ms)) if step_ms else float("nan"),
-                ms_per_step_filter_median=float(np.median(filter_ms)) if filter_ms else float("nan"),
-                ms_per_step_filter_mean=float(np.mean(filter_ms)) if filter_ms else float("nan"),
-                updates=len(update_ms),
-                ms_per_update_mean=float(np.mean(update_ms)) if update_ms else float("nan"),
-                ms_per_step_mean=float(np.mean(step_ms)) if step_ms else float("nan"),
-                wall_s=wall,
-                log_duration_s=(last_t - first_t) if first_t is not None else 0.0,
-                interrupted=interrupted,
-                output=Path(output_path),
-                rrd=Path(rrd_path) if rrd_path else None,
-            )
-            result_meta = {
-                "steps": summary.steps,
-                "scans_in_log": log.scan_count,
-                "max_scans": cfg.max_scans,
-                "interrupted": interrupted,
-                "error": None if error is None else repr(error),
-                "ms_per_step_median": summary.ms_per_step_median,
-                "ms_per_step_filter_median": summary.ms_per_step_filter_median,
-                "ms_per_step_filter_mean": summary.ms_per_step_filter_mean,
-                "updates": summary.updates,
-                "ms_per_update_mean": summary.ms_per_update_mean,
-                "ms_per_step_mean": summary.ms_per_step_mean,
-                "wall_s": wall,
-                "log_duration_s": summary.log_duration_s,
-                "real_time_factor": summary.real_time_factor,
-                "final_map_points": summary.final_map_points,
-                "peak_rss_mb": peak_rss_mb(),
-                "compile_s": 0.0 if compile_watch is None else round(compile_watch.total_s, 3),
-                "particles": cfg.filter.particles,
-                "points_per_observation": cfg.filter.points_per_observation,
-            }
+            summary = _summary(run, times)
+            result_meta = _result_metadata(run, times, summary)
             occupancy = None
-            if cfg.occupancy and not interrupted and scan_indices:
+            if run.cfg.occupancy and not times.interrupted and times.scan_indices:
                 if notice is not None:
                     notice("building the occupancy grid (every scan ray-cast at the final poses)")
-                occupancy = _occupancy(runner, log, scan_indices, cfg)
-            end = RunEnd(flt, result_meta, occupancy)
-            for w in reversed(writers):
+                occupancy = _occupancy(run.runner, run.log, times.scan_indices, run.cfg)
+            end = RunEnd(run.runner.output_filter, result_meta, occupancy)
+            for w in reversed(run.writers):
                 try:
                     w.finish(end)
                 except Exception as e:  # this output is lost, not the others: finish them, then say so
@@ -238,20 +328,14 @@ def process(
                     errors.append(e)
             finished = True
     except KeyboardInterrupt as stop:
-        if finished and error is None and not errors:  # the signal waited for the finish
-            stop.add_note(f"wrote {written}: every scan was processed before the signal")
+        if finished and times.error is None and not errors:  # the signal waited for the finish
+            stop.add_note(f"wrote {run.written}: every scan was processed before the signal")
         else:
-            _abort(writers)
+            _abort(run.writers)
         raise
     except BaseException:
-        _abort(writers)
+        _abort(run.writers)
         raise
     if errors:
         raise errors[0]
-    if after_last_scan is not None:
-        after_last_scan.add_note(f"wrote {written}: every scan was processed before the signal")
-        raise after_last_scan
-    if error is not None:
-        error.add_note(f"wrote {written} with the {summary.steps} steps done, marked interrupted")
-        raise error
     return summary

@@ -253,3 +253,30 @@ def bag_from_robot(sim, path: Path, kind: str, odometry: str = "topic", t0_s: fl
                         int(t_ns[k]), ranges[k], sim.start_angle_rad, sim.angle_increment_rad, range_max=sim.max_range_m
                     )
     return path
+
+
+def bag_of_scans(
+    path: Path,
+    scans: list[tuple[int, float, float, float]],
+    kind: str = "ros1",
+    *,
+    upside_down: bool = False,
+    t0_ns: int = 1_700_000_000 * NS,
+) -> Path:
+    """A small robot bag whose LaserScan messages carry the given angles as written, unchecked:
+    `scans` holds (ranges count, angle_min, angle_increment, angle_max) per message, each message's
+    ranges 4 m everywhere. Scans come at 5 Hz between odometry at 10 Hz (0.5 m/s ahead); /tf_static
+    holds base_link -> laser (rolled over when `upside_down`)."""
+    with BagBuilder(path, kind) as bag:
+        roll = math.pi if upside_down else 0.0
+        bag.tf(t0_ns - 10**8, [("base_link", "laser", 0.1, 0.0, 0.0, 0.2, roll)], static=True)
+        events: list[tuple[int, int, int | None]] = []  # (bag ns, order, scan index or None for odometry)
+        events += [(t0_ns + k * 10**8, 0, None) for k in range(2 * len(scans) + 2)]
+        events += [(t0_ns + k * 2 * 10**8 + 5 * 10**7, 1, k) for k in range(len(scans))]
+        for t, _, k in sorted(events, key=lambda e: (e[0], e[1])):
+            if k is None:
+                bag.odometry(t, (t - t0_ns) / NS * 0.5, 0.0, 0.0)
+            else:
+                n, angle_min, angle_increment, angle_max = scans[k]
+                bag.laser_scan(t, np.full(n, 4.0), angle_min, angle_increment, angle_max=angle_max)
+    return path

@@ -81,3 +81,42 @@ def test_pipeline_rooms_import_only_the_rooms_below_them():
         if bad:
             upward[str(p.relative_to(ROOT))] = bad
     assert not upward, upward
+
+
+def _module_imports(path: Path) -> set[str]:
+    """The pipelines modules a module imports, at run time or for typing alone (any import is an edge)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            found.add(node.module)
+            found |= {f"{node.module}.{a.name}" for a in node.names}
+    return {n for n in found if n.startswith("pipelines.")}
+
+
+def test_no_two_pipelines_modules_import_each_other_even_for_typing():
+    """No import circle in pipelines/ (a registry that imports its user's types only to name them is one)."""
+    modules = {
+        ".".join(p.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__"): p
+        for p in (ROOT / "pipelines").rglob("*.py")
+    }
+    graph = {name: {m for m in _module_imports(p) if m in modules and m != name} for name, p in modules.items()}
+    state: dict[str, int] = {}
+    cycles = []
+
+    def visit(node: str, stack: list[str]) -> None:
+        state[node] = 1
+        for nxt in sorted(graph[node]):
+            if state.get(nxt) == 1:
+                cycles.append(stack[stack.index(nxt) :] + [nxt] if nxt in stack else [node, nxt])
+            elif nxt not in state:
+                visit(nxt, [*stack, nxt])
+        state[node] = 2
+
+    for name in sorted(graph):
+        if name not in state:
+            visit(name, [name])
+    # a package's __init__ importing its own submodules (and they the package) is not a circle of modules
+    cycles = [c for c in cycles if not all(a.startswith(b) or b.startswith(a) for a, b in zip(c, c[1:], strict=False))]
+    assert not cycles, cycles

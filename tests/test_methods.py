@@ -14,7 +14,7 @@ from pipelines.methods import NAMES, Method
 
 def test_every_reader_offers_exactly_the_registry():
     from pipelines.bench.sweep import METHODS as SWEEP_METHODS
-    from pipelines.cli.app import Method as CliMethod
+    from pipelines.cli.common import Method as CliMethod
 
     assert tuple(m.value for m in CliMethod) == NAMES
     assert tuple(SWEEP_METHODS) == NAMES

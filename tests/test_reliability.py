@@ -1,4 +1,4 @@
-"""Never lose a user's data, and say plainly what is wrong (issue 14): one test per class of fault found
+"""Never lose a user's data, and say plainly what is wrong: one test per class of fault found
 by trying to break the command line. Each asserts the exit code, the message, and that every input is
 byte for byte what it was."""
 

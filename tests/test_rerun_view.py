@@ -1,4 +1,4 @@
-"""The recording seen as a user sees it: the rerun-sdk's web viewer in headless Chromium (issue 24)."""
+"""The recording seen as a user sees it: the rerun-sdk's web viewer in headless Chromium."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ def test_the_map_is_drawn_north_up_in_the_web_viewer(tmp_path):
     (y = -5 m): on the screen the map's red pixels are above the track's green ones, as on the plots."""
     from PIL import Image
 
-    from pipelines.outputs.rerun_process import Recorder
+    from pipelines.outputs.rerun_recorder import Recorder
 
     rrd = tmp_path / "north.rrd"
     gps = np.column_stack([np.arange(50.0), np.linspace(-6, 6, 50), np.full(50, -5.0)])
@@ -42,7 +42,7 @@ def test_mid_timeline_the_path_so_far_ends_at_the_robot(tmp_path):
     way."""
     from PIL import Image
 
-    from pipelines.outputs.rerun_process import Recorder
+    from pipelines.outputs.rerun_recorder import Recorder
 
     rrd = tmp_path / "drive.rrd"
     n = 40

@@ -1,4 +1,4 @@
-"""The Rerun recording's writer process (`pipelines.outputs.rerun_process`): what it imports, what it writes, and what
+"""The Rerun recording's child writer (`pipelines.outputs.rerun_recorder`): what it imports, what it writes, and what
 the filter's process does when it stops or is told to abort."""
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ GEOMETRY = ScanGeometry(181, -np.pi / 2, np.pi / 180, 30.0)
 def test_the_writer_imports_neither_the_filter_nor_pandas():
     """The writer holds rerun's memory, not the filter's; pandas (which pyarrow would pull in) is refused."""
     code = (
-        "import sys, pipelines.outputs.rerun_process as w; sys.meta_path.insert(0, w._NoPandas()); "
+        "import sys, pipelines.outputs.rerun_recorder as w; sys.meta_path.insert(0, w._NoPandas()); "
         "import rerun, pyarrow as pa; pa.array(['a']); "
         "print(sorted({m.split('.')[0] for m in sys.modules} & {'gslam', 'numba', 'pandas', 'mcap', 'scipy'}))"
     )

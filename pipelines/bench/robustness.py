@@ -2,7 +2,7 @@
 with no options at all, GMapping beside it (30 particles, ROS defaults), odometry alone; relations error.
 
 A log passes when G-SLAM's mean over seeds is at or below GMapping's and no seed is worse than twice
-GMapping's mean or than odometry alone (issue 22's bar).
+GMapping's mean or than odometry alone (the robustness bar).
 """
 
 from __future__ import annotations

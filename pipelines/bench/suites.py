@@ -45,7 +45,7 @@ class SuiteRun:
     update_ms: list[float] = field(default_factory=list)
     update_ratio: float = float("nan")
     writer_peak_mb: float = float("nan")
-    """Peak resident memory of the Rerun recording's writer process (`pipelines.outputs.rerun_process`)."""
+    """Peak resident memory of the Rerun recording's child writer (`pipelines.outputs.rerun_recorder`)."""
 
 
 @dataclass
@@ -86,7 +86,7 @@ def _percentile(values: list[float], q: float) -> float:
     return s[min(len(s) - 1, int(round(q / 100 * (len(s) - 1))))]
 
 
-def run_process(input_mcap: Path, particles: int, seed: int, threads: int, workdir: Path) -> SuiteRun:
+def timed_run(input_mcap: Path, particles: int, seed: int, threads: int, workdir: Path) -> SuiteRun:
     """`gslam process INPUT OUT --particles N --seed S [--threads K]` in a child process, as a user runs it
     (result MCAP and Rerun recording written), timed whole; then `gslam eval` on the result. threads 0:
     the default, every core."""
@@ -222,8 +222,8 @@ def speed_section(
         "  shared; medians). ms per update: the filter's time on the steps that update the maps (median,",
         "  90th percentile). Update ratio: median update time over the last tenth of the log / over its second",
         "  tenth (flat time per update: near 1). Peak MB: the maximum resident set of the filter's process",
-        "  (`gslam process`) + that of the Rerun recording's writer process it starts",
-        "  (`pipelines.outputs.rerun_process`).",
+        "  (`gslam process`) + that of the Rerun recording's child writer it starts",
+        "  (`pipelines.outputs.rerun_recorder`).",
         *gm_note,
         "",
         "| log | N | threads | wall (s) | ms per update median / p90 | update ratio | peak MB (filter + rrd) | error "
@@ -305,7 +305,7 @@ def run_suite(
                 for k in threads:
                     for seed in seeds:
                         for rep in range(repeats):
-                            r = run_process(mcap, n, seed, k, work)
+                            r = timed_run(mcap, n, seed, k, work)
                             runs.append(r)
                             err = r.metrics.get("relations_trans_m")
                             progress(

@@ -125,6 +125,7 @@ def run_demo(
     )
     say("[5/5] plotting ...")
     figure = plot_result(result, out / "demo.png", input_mcap)
+    say(f"      wrote {figure}")
     from pipelines.outputs.rerun_viewer import open_command
 
     say(f"done in {time.perf_counter() - t0:.0f} s. Open the recording with:  {open_command(rrd)}")

@@ -1,5 +1,5 @@
 """The Rerun recording's entity paths and timelines, in one place (as `mcaplog.channels` is for the MCAP
-topics): the writer process logs to them, the blueprint shows them, the tests read them."""
+topics): the child writer logs to them, the blueprint shows them, the tests read them."""
 
 SCAN_TIMELINE = "scan"
 """Sequence timeline: the scan's index in the log."""

@@ -1,5 +1,5 @@
 """The Rerun recording (.rrd) of a run: steps gathered here, encoded and written by a process of its own
-(`pipelines.outputs.rerun_process`)."""
+(`pipelines.outputs.rerun_recorder`)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from gslam.scan import ScanGeometry, inverse_measure
 from mcaplog.tempfiles import temporary_for
 from pipelines.outputs import rerun_entities as entity
 from pipelines.outputs.writer import RunEnd, RunStart
-from pipelines.outputs.writer_process import WriterProcess, start_rerun_writer
+from pipelines.outputs.writer_child import WriterChild, start_rerun_writer
 from pipelines.run.runner import Step
 
 
@@ -36,7 +36,7 @@ _STATS_KEYS = {"effective_sample_size": "ess", "map_points": "map", "step_ms": "
 class RerunResultWriter:
     """Writes a Rerun recording (.rrd) with a default blueprint, on the `scan` and `time` timelines.
 
-    The recording is encoded and written by a process of its own (`pipelines.outputs.rerun_process`), started here:
+    The recording is encoded and written by a process of its own (`pipelines.outputs.rerun_recorder`), started here:
     this object gathers the steps, computes what needs the filter (scan end points, maps, trajectories)
     and sends plain arrays; rerun is never imported in the filter's process."""
 
@@ -52,11 +52,11 @@ class RerunResultWriter:
         path: Path,
         snapshot_every: int,
         app_id: str = "gslam",
-        writer: WriterProcess | None = None,
+        writer: WriterChild | None = None,
         live_url: str | None = None,
     ) -> None:
-        """Starts the writer process, or takes `writer`, the one started beforehand by
-        `writer_process.start_rerun_writer`. `live_url`: also stream to the viewer listening there."""
+        """Starts the child writer, or takes `writer`, the one started beforehand by
+        `writer_child.start_rerun_writer`. `live_url`: also stream to the viewer listening there."""
         self.path = Path(path)
         self.live_url = live_url
         self.flush_every = self.LIVE_FLUSH_EVERY if live_url else self.FLUSH_EVERY
@@ -142,7 +142,7 @@ class RerunResultWriter:
         return np.split(pts, np.cumsum(np.bincount(row[ok], minlength=len(poses)))[:-1])
 
     def finish(self, end: RunEnd) -> Path:
-        """Send the rest and the final map and trajectories; the writer process's memory and processor time
+        """Send the rest and the final map and trajectories; the child writer's memory and processor time
         go to the result's record."""
         if self.finished:
             return self.path

@@ -1,4 +1,5 @@
-"""The first hour (issue 24, item 4): what a new user types works or says plainly what to do."""
+"""What a user types works or says plainly what to do: direct logs, help, config, exports, plots, the
+recording and live streaming, the Foxglove transforms and layout."""
 
 from __future__ import annotations
 

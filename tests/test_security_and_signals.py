@@ -1,7 +1,7 @@
-"""The holes found by 526 hostile cases (issue 23): one test per class, each asserting the exit code, the
-message, the untouched inputs, and what stands at the final path. The security cases fail on the code
-before the issue (predictable temporaries opened through symlinks, the working directory on the writer's
-import path, a recorded input path trusted and echoed, an unbounded chunk)."""
+"""Hostile input and signals: one test per class of hole, each asserting the exit code, the message, the
+untouched inputs, and what stands at the final path. The security cases: predictable temporaries opened
+through symlinks, the working directory on the writer's import path, a recorded input path trusted and
+echoed, an unbounded chunk."""
 
 from __future__ import annotations
 
@@ -233,7 +233,7 @@ def test_fifos_and_devices_are_refused_not_read(tmp_path):
 
 # ---- 5. security ----------------------------------------------------------------------------------
 def test_a_symlink_planted_at_a_temporary_name_is_never_written_through(small, tmp_path, monkeypatch):
-    """The name the code before issue 23 used (`.NAME.PID.tmp`) and the next random name are both planted
+    """The name the code once used (`.NAME.PID.tmp`) and the next random name are both planted
     as symlinks to a victim file: export writes its output and the victim is untouched."""
     import secrets
 

@@ -1,11 +1,11 @@
-"""The Rerun recording's writer process (`python -m pipelines.outputs.rerun_process`), fed by `RerunResultWriter`.
+"""The Rerun recording's child writer (`python -m pipelines.outputs.rerun_recorder`), fed by `RerunResultWriter`.
 
 The recording is written in a process of its own so that importing rerun (and the pyarrow it pulls in),
 building the blueprint and encoding the rows run on another core than the filter, and the filter's
 process does not hold rerun's memory. Plain data only: numpy arrays in pickled commands on stdin, one
 JSON line per reply on stdout. It imports numpy and rerun, nothing of the filter.
 
-Commands (`pipelines.outputs.writer_process`): ("open", path, app_id, gps, landmarks, live_url), then any number of
+Commands (`pipelines.outputs.writer_child`): ("open", path, app_id, gps, landmarks, live_url), then any number of
 ("rows", ...) and ("map", ...), then ("finish", final) or ("abort",). The file at `path` is the caller's
 temporary: the caller renames it once "finish" is answered. When stdin closes without "finish" or
 "abort" (the caller was killed) the rows received are flushed and the temporary is left, as the
@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from pipelines.outputs import rerun_entities as entity
-from pipelines.outputs import writer_process
+from pipelines.outputs import writer_child
 
 
 def probability_colors(p: np.ndarray) -> np.ndarray:
@@ -242,14 +242,14 @@ def main() -> int:
     # pyarrow (under rerun) imports pandas, when installed, at its first array: time and memory the
     # recording never uses. Refusing the import here is what pyarrow sees when pandas is not installed.
     sys.meta_path.insert(0, _NoPandas())
-    # Imported now, not at "open" (`writer_process.start_rerun_writer` says why). A failure here is left
+    # Imported now, not at "open" (`writer_child.start_rerun_writer` says why). A failure here is left
     # for "open" to report.
     try:
         import rerun  # noqa: F401
         import rerun.blueprint  # noqa: F401
     except Exception:
         pass
-    return writer_process.main(Recorder)
+    return writer_child.main(Recorder)
 
 
 if __name__ == "__main__":

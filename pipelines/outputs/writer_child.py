@@ -1,14 +1,14 @@
 """Output files written by processes of their own, so that encoding and writing them runs on a core the
 filter leaves idle (between its updates the filter is one Python thread) instead of in the filter's.
 
-Parent side, `WriterProcess`: starts `python -P -m MODULE` (the working directory off its import path),
+Parent side, `WriterChild`: starts `python -P -m MODULE` (the working directory off its import path),
 sends it pickled commands through a queue and a sender thread (the filter never waits on the pipe),
 reads its one-line JSON replies. Child side, `serve`: reads the commands and calls the handler's
 methods. Commands: ("open", ...) first (replied to), then any of the handler's own, then ("finish", ...)
 (replied to, with the process's peak memory and processor time) or ("abort",). When its input ends
 without either (the caller was killed) the handler's `close` keeps what was received. The file is always
 the caller's temporary: the caller renames it after "finish".
-This module imports only the standard library, so the writer processes stay small.
+This module imports only the standard library, so the child writers stay small.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from pipelines.errors import OutputError
 
 
 def _environment() -> dict[str, str]:
-    """This process's environment, with `pipelines` importable by the writer process however it was, and
+    """This process's environment, with `pipelines` importable by the child writer however it was, and
     no relative entry on its import path (an empty or relative PYTHONPATH entry is the working directory)."""
     root = str(Path(__file__).resolve().parents[2])
     env = dict(os.environ)
@@ -49,21 +49,21 @@ def python_command(module: str) -> list[str]:
 
 
 STALL_TIMEOUT_S = 60.0
-"""A writer process that takes no input and gives no reply for this long is killed
+"""A child writer that takes no input and gives no reply for this long is killed
 (`GSLAM_WRITER_TIMEOUT_S` sets another bound)."""
 
 
-class WriterProcess:
-    """A writer process for the output `path`, described to the user as `what` in its errors."""
+class WriterChild:
+    """A child writer for the output `path`, described to the user as `what` in its errors."""
 
     def __init__(self, module: str, what: str, path: Path, open_command: tuple | None = None) -> None:
         """Start `python -m module`; `open_command` now, or later with `open` (until then only `abort`)."""
         self.what = what
         self.path = Path(path)
         self.peak_rss_mb = float("nan")
-        """The writer process's peak resident memory (MB), known after `finish`."""
+        """The child writer's peak resident memory (MB), known after `finish`."""
         self.cpu_s = float("nan")
-        """The writer process's processor time (user + system, s), known after `finish`."""
+        """The child writer's processor time (user + system, s), known after `finish`."""
         self.proc = subprocess.Popen(
             python_command(module),
             stdin=subprocess.PIPE,
@@ -158,17 +158,17 @@ class WriterProcess:
                 pass  # killed: the caller removes the temporary
 
 
-def start_rerun_writer(path: Path) -> WriterProcess:
-    """The Rerun recording's writer process (`pipelines.outputs.rerun_process`) for `path`, started before
+def start_rerun_writer(path: Path) -> WriterChild:
+    """The Rerun recording's child writer (`pipelines.outputs.rerun_recorder`) for `path`, started before
     the recording is opened (`RerunResultWriter(path, ..., writer=...)`).
 
     This is the one place that says why it starts early: `gslam process` starts it before it imports
     numpy and numba, so that the writer's own start-up (importing rerun and pyarrow) runs on the core
     that the filter's one thread leaves idle until its first update (figures in docs/SPEED.md)."""
-    return WriterProcess("pipelines.outputs.rerun_process", "the Rerun recording", path)
+    return WriterChild("pipelines.outputs.rerun_recorder", "the Rerun recording", path)
 
 
-# --- the writer process's side -------------------------------------------------------------------
+# --- the child writer's side -------------------------------------------------------------------
 def usage() -> dict[str, float]:
     """This process's peak resident memory (MB) and processor time (user + system, s) so far.
 
@@ -223,7 +223,7 @@ def serve(opener: Callable[..., Any], commands: BinaryIO, replies: BinaryIO) -> 
 
 
 def main(opener: Callable[..., Any]) -> int:
-    """The writer process's entry: signals left to the caller, replies on a stdout of their own."""
+    """The child writer's entry: signals left to the caller, replies on a stdout of their own."""
     # The caller handles Ctrl-C and SIGTERM and then tells this process to finish: ignore them here.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)

@@ -1,0 +1,175 @@
+"""`gslam bench`'s suites behind one call: which suite runs what, on which logs, and the Markdown section it
+gives (each suite's own module runs it and formats its table). Bad options raise `OptionError` naming the
+option, before anything runs."""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from pipelines.errors import OptionError
+from pipelines.methods import NAMES as METHOD_NAMES
+
+SUITES = ("carpark", "freiburg", "speed", "robustness", "localise")
+
+
+@dataclass(frozen=True)
+class BenchRequest:
+    """What `gslam bench` was asked for (its options, with the command's defaults)."""
+
+    suite: str = "carpark"
+    quick: bool = False
+    methods: str = "gslam"
+    seeds: int | None = None
+    data: Path = Path("../shared/datasets/carpark")
+    freiburg: Path = Path("../shared/datasets/freiburg")
+    gmapping: Path = Path("../shared/tools/gmapping")
+    datasets: Path = Path("../shared/datasets")
+    logs: str | None = None
+    command: str = "gslam bench"
+
+
+def corpus_logs(logs: str | None, datasets: Path) -> list[str] | None:
+    """The corpus logs `--logs` names (None: all), checked against the corpus; and `--datasets` checked."""
+    from pipelines.bench.corpus import FREIBURG_LOGS, RADISH_LOGS
+
+    only = [name.strip() for name in logs.split(",") if name.strip()] if logs else None
+    unknown = sorted(set(only or []) - set(FREIBURG_LOGS + RADISH_LOGS))
+    if unknown:
+        raise OptionError(
+            f"--logs: unknown log(s) {', '.join(unknown)}; the corpus: {', '.join(FREIBURG_LOGS + RADISH_LOGS)}"
+        )
+    if not datasets.is_dir():
+        raise OptionError(f"--datasets {datasets}: no such directory")
+    return only
+
+
+def check_request(request: BenchRequest) -> None:
+    """Refuse an unknown suite or method before anything runs."""
+    if request.suite not in SUITES:
+        raise OptionError(f"--suite {request.suite}: expected {', '.join(SUITES[:-1])} or {SUITES[-1]}")
+    if request.suite == "carpark":
+        chosen_methods(request.methods)
+
+
+def chosen_methods(methods: str) -> list[str]:
+    """The methods `--methods` names (`all`: every one)."""
+    chosen = [m.strip() for m in methods.split(",") if m.strip()]
+    if chosen == ["all"]:
+        return list(METHOD_NAMES)
+    missing = [m for m in chosen if m not in METHOD_NAMES]
+    if missing or not chosen:
+        raise OptionError(
+            f"--methods {methods}: unknown method(s) {', '.join(missing)}; choose from {', '.join(METHOD_NAMES)} or all"
+        )
+    return chosen
+
+
+def run_benchmark(request: BenchRequest, echo: Callable[[str], None]) -> str:
+    """Run the suite `request` names; its Markdown section (with the machine, versions and command).
+    `echo` takes the progress lines."""
+    check_request(request)
+    run = {
+        "robustness": _robustness,
+        "localise": _localise,
+        "freiburg": _freiburg,
+        "speed": _speed,
+        "carpark": _carpark,
+    }[request.suite]
+    return run(request, echo)
+
+
+def _machine():
+    from pipelines.bench.carpark import machine_description, versions
+
+    return machine_description(), versions()
+
+
+def _gmapping_harness(request: BenchRequest, echo: Callable[[str], None], without: str) -> Path | None:
+    if (request.gmapping / "run.sh").exists():
+        return request.gmapping
+    echo(f"--gmapping {request.gmapping}: no run.sh there; {without}")
+    return None
+
+
+def _robustness(request: BenchRequest, echo: Callable[[str], None]) -> str:
+    from pipelines.bench.robustness import robustness_section, run_robustness
+
+    only = corpus_logs(request.logs, request.datasets)
+    harness = _gmapping_harness(request, echo, "GMapping is left out")
+    results = run_robustness(request.datasets, list(range(request.seeds or 3)), echo, harness, only=only)
+    return robustness_section(results, request.command, *_machine(), 30, 0)
+
+
+def _localise(request: BenchRequest, echo: Callable[[str], None]) -> str:
+    from pipelines.bench.corpus import FREIBURG_LOGS, RADISH_LOGS, build_corpus
+    from pipelines.bench.localise import localise_section, run_localise_bench
+    from pipelines.bench.suites import ingest_to
+
+    only = corpus_logs(request.logs, request.datasets)
+    with tempfile.TemporaryDirectory(prefix="gslam-bench-localise-in-") as tmp:
+        # the corpus of the robustness suite: the Freiburg logs (real odometry) and the Radish logs with
+        # odometry corrupted (odometry seed 0)
+        corpus = [c for c in build_corpus(request.datasets, Path(tmp), 0) if only is None or c.name in only]
+        missing = sorted(set(only or FREIBURG_LOGS + RADISH_LOGS) - {c.name for c in corpus})
+        if missing:
+            echo(f"--datasets {request.datasets}: {', '.join(missing)} not found; left out")
+        if not corpus:
+            raise OptionError(f"--datasets {request.datasets}: no corpus log found")
+        inputs = [(c.name, ingest_to(c.log, Path(tmp))) for c in corpus]
+        runs = run_localise_bench(inputs, echo)
+    return localise_section(runs, request.command, *_machine())
+
+
+def _freiburg_logs(request: BenchRequest) -> list[Path]:
+    logs = [request.freiburg / "mit-csail.clf.gz", request.freiburg / "intel.clf.gz"]
+    for log in logs:
+        if not log.exists():
+            raise OptionError(f"--freiburg {request.freiburg}: {log.name} not found")
+    return logs
+
+
+def _freiburg(request: BenchRequest, echo: Callable[[str], None]) -> str:
+    from pipelines.bench.suites import freiburg_section, run_suite
+
+    runs = run_suite("freiburg", _freiburg_logs(request), [30], list(range(request.seeds or 5)), [0], 1, echo)
+    return freiburg_section(runs, request.command, *_machine())
+
+
+def _speed(request: BenchRequest, echo: Callable[[str], None]) -> str:
+    from pipelines.bench.suites import run_suite, speed_section
+
+    logs = _freiburg_logs(request)
+    if not request.data.exists():
+        raise OptionError(f"--data {request.data}: no such file or directory")
+    # Every core (the default), and one thread for the scaling; N 8 / 30 / 100 on the Car Park for the
+    # growth in N; the Freiburg logs at N 30, as GMapping was measured.
+    jobs = [(request.data, [8, 30, 100], [0]), (request.data, [30], [1]), (logs[0], [30], [0]), (logs[1], [30], [0, 1])]
+    harness = _gmapping_harness(request, echo, "the table gives GMapping's reference times")
+    runs, gm_runs = [], []
+    for log, ns, counts in jobs:
+        runs += run_suite("speed", [log], ns, [0], counts, 3, echo, harness, gm_runs)
+    return speed_section(runs, request.command, *_machine(), 3, gm_runs)
+
+
+def _carpark(request: BenchRequest, echo: Callable[[str], None]) -> str:
+    from pipelines.bench.carpark import FULL_GRID, QUICK_GRID, markdown_table, run_bench
+
+    t0 = time.perf_counter()
+    chosen = chosen_methods(request.methods)
+    n_seeds = request.seeds if request.seeds is not None else (1 if request.quick else 3)
+    grid = QUICK_GRID if request.quick else FULL_GRID
+    if not request.data.exists():
+        raise OptionError(f"--data {request.data}: no such file or directory")
+    with tempfile.TemporaryDirectory(prefix="gslam-bench-in-") as tmp:
+        if request.data.is_dir():
+            from pipelines.bench.suites import ingest_to
+
+            input_mcap = ingest_to(request.data, Path(tmp))
+        else:
+            input_mcap = request.data
+        results = run_bench(input_mcap, grid, n_seeds, progress=echo, methods=tuple(chosen))
+    return markdown_table(results, n_seeds, request.command, time.perf_counter() - t0)

@@ -1,0 +1,61 @@
+"""`gslam localise`: find the robot in a saved map."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from pipelines.cli.common import check_outputs
+from pipelines.cli.errors import fail, guarded
+from pipelines.cli.progress import reporting
+
+
+@guarded
+def localise(
+    map_path: Annotated[
+        Path, typer.Argument(metavar="MAP", help="The map: a `gslam process` result .mcap or a map_server .yaml.")
+    ],
+    input_mcap: Annotated[Path, typer.Argument(metavar="IN", help="Ingested log (MCAP) with odometry and scans.")],
+    output: Annotated[Path, typer.Argument(metavar="OUT", help="Result MCAP.")],
+    initial_pose: Annotated[
+        tuple[float, float, float] | None,
+        typer.Option("--initial-pose", metavar="X Y YAW", help="Start here (m, m, rad, map frame); else global."),
+    ] = None,
+    initial_sigma: Annotated[
+        tuple[float, float] | None,
+        typer.Option("--initial-sigma", metavar="XY YAW", help="Spread (sd, m and rad) around --initial-pose."),
+    ] = None,
+    rrd: Annotated[Path | None, typer.Option("--rrd", help="Rerun recording (default: OUT with .rrd).")] = None,
+    no_rrd: Annotated[bool, typer.Option("--no-rrd", help="Do not write the Rerun recording.")] = False,
+    seed: Annotated[int, typer.Option("--seed", min=0, max=2**32 - 1, help="Seed of the particle filter.")] = 0,
+    max_particles: Annotated[
+        int, typer.Option("--max-particles", min=1, help="KLD sampling's largest count after the first update.")
+    ] = 5000,
+    global_particles: Annotated[
+        int, typer.Option("--global-particles", min=1, help="Particles of the global search (no initial pose).")
+    ] = 20000,
+    skip_scans: Annotated[int, typer.Option("--skip-scans", min=0, help="Start at this scan of IN.")] = 0,
+) -> None:
+    """Localise a log in a saved map: Monte Carlo localisation (KLD-adaptive, scan-matching proposal,
+    recovery from kidnapping), with a tracking / lost state and a fitness score at every scan."""
+    from gslam.localise import LocaliseConfig
+    from pipelines.localise.run import LocaliseRequest, localise
+
+    if initial_sigma is not None and initial_pose is None:
+        fail("--initial-sigma needs --initial-pose")
+    rrd_path = None if no_rrd else (rrd or output.with_suffix(".rrd"))
+    outputs = {"OUT": output, **({"--rrd": rrd_path} if rrd_path is not None else {})}
+    check_outputs(outputs, {"MAP": map_path, "IN": input_mcap})
+    try:
+        cfg = LocaliseConfig(seed=seed, max_particles=max_particles, global_particles=global_particles,
+                             min_particles=min(100, max_particles))  # fmt: skip
+    except ValueError as e:
+        fail(str(e))
+    request = LocaliseRequest(map_path, input_mcap, output, rrd_path, initial_pose, initial_sigma, cfg, skip_scans)
+    with reporting("localise", "scans") as (report, _):
+        summary = localise(request, report)
+    typer.echo(f"map {summary.map_source}")
+    typer.echo(summary.describe())
+    typer.echo(f"wrote {output}" + (f" and {rrd_path}" if rrd_path is not None else ""))
