@@ -19,7 +19,7 @@ FillSkipped = Literal["odometry", "sampled"]
 
 @dataclass
 class FilterConfig:
-    """G-SLAM options, with defaults chosen by measurement on the Car Park log (docs/CHOICES.md).
+    """G-SLAM options, with defaults chosen by measurement on every log of the corpus (docs/CHOICES.md).
 
     Paper-literal settings: observation_unit "scan", map_update "global", prune_relative False,
     weighting "sum", proposal "motion", update_schedule "every_scan" (see `literal()`).

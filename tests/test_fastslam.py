@@ -80,7 +80,7 @@ def test_landmark_world_beats_dead_reckoning(version):
         dr_errs.append(np.hypot(*(dead[0, :2] - truth[0, :2])))
     err, dr = float(np.mean(errs)), float(np.mean(dr_errs))
     # Measured: dead reckoning 5.15 m; FastSLAM 1.0 0.36 m; FastSLAM 2.0 1.22 m. 2.0 should not be worse
-    # than 1.0: that gap is open (docs/CHOICES.md), so only 1.0 is held to 0.5 m here.
+    # than 1.0: that gap on this simulated world is open, so only 1.0 is held to 0.5 m here.
     assert err < 0.3 * dr, (err, dr)
     if version == 1:
         assert err < 0.5, err
