@@ -35,40 +35,49 @@ def test_the_map_is_drawn_north_up_in_the_web_viewer(tmp_path):
 
 
 @pytest.mark.skipif(WHY_NOT is not None, reason=f"no browser check here: {WHY_NOT}")
-def test_mid_timeline_the_path_so_far_ends_at_the_robot(tmp_path):
-    """A robot driving east from x = -8 to +8 m in 40 steps of 1 s beside a GPS line: with the time cursor
-    put at 10 s in the web viewer's time panel, the gold path so far runs from the start to the white
-    robot arrow a quarter of the way along, and nothing of it lies beyond; at the end it runs the whole
-    way."""
+def test_mid_timeline_the_path_and_the_plots_show_the_run_so_far(tmp_path):
+    """A robot driving east from x = -8 to +8 m in 120 steps of 1 s beside a GPS line, its map growing by 10
+    points a step: with the time cursor put at 30 s in the web viewer's time panel, the gold path so far
+    runs from the start to the white robot arrow a quarter of the way along, and nothing of it lies beyond;
+    the map-points line (its fixed colour, in the plots' column right of the map) runs from the start to
+    the cursor, a quarter of the plot's width. At the end both run the whole way. Left to the viewer's own
+    time axis (a window of +-30 s around the cursor once the data span a minute) the plots showed a minute
+    around the cursor, full width at any time, instead of the run so far."""
     from PIL import Image
 
-    from pipelines.outputs.rerun_recorder import Recorder
+    from pipelines.outputs.rerun_recorder import SERIES, Recorder
 
     rrd = tmp_path / "drive.rrd"
-    n = 40
+    n = 120
     x = np.linspace(-8.0, 8.0, n)
-    rec = Recorder(str(rrd), "gslam-test", np.array([[0.0, -8.0, -3.0], [1.0, 8.0, -3.0]]), None)
+    rec = Recorder(str(rrd), "gslam-test", np.array([[0.0, -8.0, -3.0], [float(n), 8.0, -3.0]]), None)
     poses = np.column_stack([x, np.zeros(n), np.zeros(n), np.r_[x[0], x[:-1]], np.zeros(n)])
-    rec.rows(np.arange(n), np.arange(n, dtype=float), {}, poses)
+    stats = {"map_points": 10.0 * np.arange(n), "effective_sample_size": np.full(n, 30.0), "step_ms": np.ones(n)}
+    rec.rows(np.arange(n), np.arange(n, dtype=float), {}, poses, stats)
     rec.finish({})
+    colour = np.array(SERIES["map_points"][1])
 
-    def extents(png) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        pix = np.asarray(Image.open(png).convert("RGB")).astype(int)[70:670, 200:1025]  # the map view
+    def extents(png) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        full = np.asarray(Image.open(png).convert("RGB")).astype(int)
+        pix = full[70:670, 200:1025]  # the map view
         r, g, b = pix[..., 0], pix[..., 1], pix[..., 2]
         gold = np.argwhere((r > 200) & (g > 170) & (b < 120))[:, 1]
         white = np.argwhere((r > 235) & (g > 235) & (b > 235))[:, 1]
         green = np.argwhere((g > 150) & (r < 110) & (b < 110))[:, 1]
-        return gold, white, green
+        line = np.argwhere(np.abs(full[:, 1260:] - colour).max(axis=2) < 30)[:, 1]  # the plots, right of the map
+        return gold, white, green, line
 
-    gold, white, green = extents(rerun_screenshot.screenshot(rrd, tmp_path / "mid.png", time_s=10.0))
+    gold, white, green, line = extents(rerun_screenshot.screenshot(rrd, tmp_path / "mid.png", time_s=30.0))
     assert len(gold) > 50 and len(white) > 20 and len(green) > 100, (len(gold), len(white), len(green))
     span = green.max() - green.min()  # the GPS line, x = -8 .. 8 m
 
     def along(cols: np.ndarray) -> float:
         return float((cols - green.min()) / span)
 
-    # At 10 s the robot is at x = -8 + 16 * 10 / 39 = -3.9 m: a quarter of the way.
+    # At 30 s the robot is at x = -8 + 16 * 30 / 119 = -4.0 m: a quarter of the way.
     assert along(gold.min()) < 0.05 and 0.15 < along(gold.max()) < 0.4, (along(gold.min()), along(gold.max()))
     assert 0.15 < along(np.median(white)) < 0.45 and white.min() >= gold.max() - 10
-    gold_end, _, green_end = extents(rerun_screenshot.screenshot(rrd, tmp_path / "end.png"))
+    gold_end, _, green_end, line_end = extents(rerun_screenshot.screenshot(rrd, tmp_path / "end.png"))
     assert (gold_end.max() - green_end.min()) / (green_end.max() - green_end.min()) > 0.9
+    assert len(line) > 30 and len(line_end) > len(line), (len(line), len(line_end))
+    assert np.ptp(line) > 30 and np.ptp(line_end) > 2.5 * np.ptp(line), (np.ptp(line), np.ptp(line_end))

@@ -190,12 +190,7 @@ def test_live_streams_to_a_viewer_and_still_writes_the_recording(tmp_path):
     import sys
     import time
 
-    def free_port() -> int:
-        with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            return s.getsockname()[1]
-
-    grpc, web = free_port(), free_port()
+    grpc, web = _free_port(), _free_port()
     rerun = str(Path(sys.executable).with_name("rerun"))
     server = subprocess.Popen(
         [rerun, "--serve-web", "--port", str(grpc), "--web-viewer-port", str(web)],
@@ -212,11 +207,16 @@ def test_live_streams_to_a_viewer_and_still_writes_the_recording(tmp_path):
         url = f"rerun+http://127.0.0.1:{grpc}/proxy"
         log = _carmen_log(tmp_path / "corridor.clf", 40)
         out = tmp_path / "r.mcap"
-        result = gslam("process", log, "-o", out, "-N", "2", "--live-url", url)
+        result = gslam("process", log, "-o", out, "-N", "2", "--live-url", url, "--keep-viewer")
         assert result.exit_code == 0, result.output
         assert f"streaming live to the Rerun viewer at {url}" in result.output
         verified = subprocess.run([rerun, "rrd", "verify", str(out.with_suffix(".rrd"))], capture_output=True)
         assert verified.returncode == 0
+        again = gslam("process", log, "-o", tmp_path / "again.mcap", "-N", "2", "--live-url", url)
+        assert again.exit_code == 0, again.output
+        # A viewer that was listening before the run is not ours: left alone, with or without --keep-viewer.
+        assert server.poll() is None and _listening(grpc), again.output
+        assert "Rerun viewer started for --live" not in result.output + again.output
     finally:
         from pipelines.outputs.rerun_screenshot import stop_group
 
@@ -225,6 +225,156 @@ def test_live_streams_to_a_viewer_and_still_writes_the_recording(tmp_path):
     assert bad.exit_code == 2 and "live_url must be a Rerun gRPC address" in bad.output
     both = gslam("process", log, "-o", tmp_path / "y.mcap", "--live-url", url, "--no-rrd")
     assert both.exit_code == 2 and "cannot go with --no-rrd" in both.output
+    alone = gslam("process", log, "-o", tmp_path / "z.mcap", "--keep-viewer")
+    assert alone.exit_code == 2 and "--keep-viewer goes with --live" in alone.output
+
+
+# --- the viewer started for --live ------------------------------------------------------------------------
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _listening(port: int) -> bool:
+    import socket
+
+    with socket.socket() as s:
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+def _viewer_processes(port: int) -> list[int]:
+    """The running processes whose command line has `--port PORT`: the `rerun` wrapper and the viewer
+    binary it runs (ended ones not yet reaped have no command line)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        try:
+            args = (entry / "cmdline").read_bytes().split(b"\0") if entry.name.isdigit() else []
+        except OSError:
+            continue
+        if any(a == b"--port" and b == str(port).encode() for a, b in zip(args, args[1:], strict=False)):
+            found.append(int(entry.name))
+    return found
+
+
+def _kill(pids: list[int]) -> None:
+    import os
+    import signal
+
+    for pid in pids:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+
+
+@pytest.fixture
+def no_screen(monkeypatch):
+    """The web viewer is the one started (as on CI and servers): no window opens; /proc names its processes."""
+    if not Path("/proc/self/cmdline").exists():
+        pytest.skip("the viewer's processes are found in /proc")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+
+
+class _Watch:
+    """Watches, from another thread, whether a viewer runs at `port` while a command runs in this one."""
+
+    def __init__(self, port: int) -> None:
+        import threading
+
+        self.port, self.seen, self.done = port, False, threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        while not self.done.wait(0.1):
+            self.seen = self.seen or (_listening(self.port) and bool(_viewer_processes(self.port)))
+
+    def __enter__(self) -> _Watch:
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.done.set()
+        self.thread.join()
+
+
+def test_live_stops_the_viewer_it_started_when_the_run_ends(carpark_mcap, tmp_path, no_screen):
+    """`--live` where no viewer listens starts one for the run (the web viewer: gRPC and web ports), and
+    stops it when the run ends, finished or failed: its processes gone, both ports free."""
+    import re
+
+    port = _free_port()
+    url = f"rerun+http://127.0.0.1:{port}/proxy"
+    try:
+        with _Watch(port) as watch:
+            result = gslam("process", carpark_mcap, tmp_path / "cp.mcap", "-N", "8", "--live-url", url)
+        assert result.exit_code == 0, result.output
+        assert watch.seen and "started a Rerun web viewer" in result.output, result.output
+        web = int(re.search(r"open http://localhost:(\d+)/", result.output)[1])
+        said = "stopped the Rerun viewer started for --live (pass --keep-viewer to leave it running)"
+        assert said in result.output, result.output
+        assert _viewer_processes(port) == [] and not _listening(port) and not _listening(web)
+        (tmp_path / "broken.mcap").write_bytes(b"\x89MCAP0\r\n" + bytes(4000))  # fails after the viewer starts
+        failed = gslam("process", tmp_path / "broken.mcap", tmp_path / "b.mcap", "--live-url", url)
+        assert failed.exit_code == 2 and "started a Rerun web viewer" in failed.output, failed.output
+        assert said in failed.output, failed.output
+        assert _viewer_processes(port) == [] and not _listening(port)
+    finally:
+        _kill(_viewer_processes(port))
+
+
+def test_live_stops_the_viewer_it_started_when_the_run_is_interrupted(carpark_mcap, tmp_path, no_screen):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    port = _free_port()
+    url = f"rerun+http://127.0.0.1:{port}/proxy"
+    cmd = [sys.executable, "-m", "pipelines.cli", "process", carpark_mcap, tmp_path / "cp.mcap", "-N", "30"]
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    proc = subprocess.Popen([*map(str, cmd), "--live-url", url], env=env, stdout=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (_listening(port) and _viewer_processes(port)) and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.1)
+        assert _viewer_processes(port), "no viewer started"
+        time.sleep(1.0)  # into the run
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=120)
+        assert proc.returncode == 130, out
+        assert _viewer_processes(port) == [] and not _listening(port)
+    finally:
+        proc.kill()
+        _kill(_viewer_processes(port))
+
+
+def test_keep_viewer_leaves_the_viewer_started_for_live_running(carpark_mcap, tmp_path, no_screen):
+    import os
+    import re
+    import signal
+    import time
+
+    port = _free_port()
+    url = f"rerun+http://127.0.0.1:{port}/proxy"
+    try:
+        result = gslam("process", carpark_mcap, tmp_path / "cp.mcap", "-N", "8", "--live-url", url, "--keep-viewer")
+        assert result.exit_code == 0, result.output
+        assert "left the Rerun viewer started for --live running" in result.output, result.output
+        assert _listening(port) and _viewer_processes(port)
+        group = int(re.search(r"kill -- -(\d+)", result.output)[1])  # as the line tells the user
+        os.killpg(group, signal.SIGTERM)
+        deadline = time.monotonic() + 20
+        while (_viewer_processes(port) or _listening(port)) and time.monotonic() < deadline:
+            time.sleep(0.1)  # (a process's command line goes a moment before its sockets close)
+        assert _viewer_processes(port) == [] and not _listening(port)
+    finally:
+        _kill(_viewer_processes(port))
 
 
 def test_the_result_carries_the_transform_tree_for_foxglove(tmp_path):
@@ -317,3 +467,13 @@ def test_the_foxglove_layout_names_what_the_result_holds(tmp_path):
     for path in plotted:
         topic, field = path.split(".", 1)
         assert topic == "/slam/stats" and field in stats, path
+
+
+@pytest.mark.parametrize("screen", [True, False])
+def test_the_way_to_open_a_recording_is_said_with_and_without_a_screen(monkeypatch, screen):
+    from pipelines.outputs import rerun_viewer
+
+    monkeypatch.setattr(rerun_viewer, "has_screen", lambda: screen)
+    said = rerun_viewer.open_command(Path("out/cp.rrd"))
+    assert "rerun out/cp.rrd" in said and "rerun --web-viewer out/cp.rrd" in said, said
+    assert said.startswith("rerun out/cp.rrd" if screen else "rerun --web-viewer out/cp.rrd"), said

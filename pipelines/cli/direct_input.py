@@ -1,4 +1,4 @@
-"""`gslam process` on a log or a bag: what the input is, and its ingest on the way.
+"""`gslam process` (and `gslam localise`) on a log or a bag: what the input is, and its ingest on the way.
 
 An MCAP written by `gslam ingest` is processed as it is. A log or bag that `gslam ingest` reads (a Sydney
 directory, a CARMEN `.clf`/`.log[.gz]`, a ROS 1 `.bag`, a ROS 2 bag directory, `.db3`, or an `.mcap` that
@@ -6,6 +6,8 @@ another program wrote) is ingested first into `OUTPUT.input.mcap` beside the res
 defaults, so `gslam eval`, `plot` and `export` find the run's input as after an explicit ingest (as
 kiss-icp's pipeline reads a dataset directly). An earlier ingest of the same source at that path is
 reused when it is newer than the source. Anything else is refused in plain words, saying what was expected.
+`gslam localise MAP IN OUT` does the same for IN (into `OUT.input.mcap`); `role` names the argument in the
+messages.
 """
 
 from __future__ import annotations
@@ -55,26 +57,26 @@ class DirectInput:
     """An earlier ingest of `source` at `mcap` was used."""
 
 
-def needs_ingest(source: Path) -> str | None:
+def needs_ingest(source: Path, role: str = "INPUT") -> str | None:
     """The ingest format of `source` when it is a log or bag rather than a gslam input MCAP, else None.
-    Raises InputError, in plain words, for what is neither."""
+    Raises InputError, in plain words naming the argument `role`, for what is neither."""
     from ingest import IngestError, detect_format
 
     if source.is_file() and mcap_library(source) == "gslam":
         return None
     if not source.exists():
-        raise InputError(f"INPUT {source}: no such file or directory")
+        raise InputError(f"{role} {source}: no such file or directory")
     try:
         return detect_format(source)
     except IngestError:
         pass
     if source.is_file() and mcap_library(source) is not None:
         raise InputError(
-            f"INPUT {source}: an MCAP that gslam did not write; give an input MCAP from `gslam ingest` "
+            f"{role} {source}: an MCAP that gslam did not write; give an input MCAP from `gslam ingest` "
             "(a ROS 2 bag in MCAP storage is read when its name ends in .mcap)"
         )
     raise InputError(
-        f"INPUT {source}: not an MCAP from `gslam ingest` and not a log gslam reads (a Sydney log directory, "
+        f"{role} {source}: not an MCAP from `gslam ingest` and not a log gslam reads (a Sydney log directory, "
         "a CARMEN .clf/.log[.gz], a ROS 1 .bag or a ROS 2 bag); see `gslam ingest --help`"
     )
 
@@ -103,11 +105,15 @@ def _ingest_of(meta: dict, mcap: Path, source: Path) -> bool:
 
 
 def prepare(
-    source: Path, output: Path, progress: Callable[[int, int], None] | None = None, fmt: str | None = None
+    source: Path,
+    output: Path,
+    progress: Callable[[int, int], None] | None = None,
+    fmt: str | None = None,
+    role: str = "INPUT",
 ) -> DirectInput:
-    """The MCAP `process` reads for `source`: itself, or `source` ingested into `ingested_path(output)`.
-    A file at that path that is not an earlier gslam ingest is never overwritten."""
-    fmt = fmt or needs_ingest(source)
+    """The MCAP `process` (or `localise`) reads for `source`: itself, or `source` ingested into
+    `ingested_path(output)`. A file at that path that is not an earlier gslam ingest is never overwritten."""
+    fmt = fmt or needs_ingest(source, role)
     if fmt is None:
         return DirectInput(source)
     mcap = ingested_path(output)
@@ -117,7 +123,7 @@ def prepare(
             return DirectInput(mcap, source, reused=True)
         if meta is None:  # only an earlier ingest is replaced, never another file
             raise InputError(
-                f"INPUT {source} is a log: it would be ingested into {mcap}, which exists and is not an "
+                f"{role} {source} is a log: it would be ingested into {mcap}, which exists and is not an "
                 "input MCAP from gslam ingest; move that file, or run `gslam ingest` yourself"
             )
     from ingest import ingest

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated
 
@@ -9,12 +11,29 @@ import typer
 
 from pipelines.cli.common import check_outputs
 from pipelines.cli.errors import fail, guarded
+from pipelines.cli.progress import Report, reporting
+
+
+@contextmanager
+def _phase(what: str, unit: str) -> Iterator[Report]:
+    """One slow part of the export, shown as the other commands show their progress."""
+    with reporting(f"export: {what}", unit) as (report, _):
+        yield report
 
 
 @guarded
 def export(
-    result: Annotated[Path, typer.Argument(metavar="RESULT", help="Result MCAP from `gslam process`.")],
-    tum: Annotated[Path | None, typer.Option("--tum", help="Write the final best trajectory (TUM format).")] = None,
+    result: Annotated[
+        Path, typer.Argument(metavar="RESULT", help="Result MCAP from `gslam process` or `gslam localise`.")
+    ],
+    tum: Annotated[
+        Path | None,
+        typer.Option(
+            "--tum",
+            help="Write the trajectory (TUM format): the final best one of a process result, the estimate at "
+            "every scan of a localisation result.",
+        ),
+    ] = None,
     reference: Annotated[
         Path | None,
         typer.Option(
@@ -43,7 +62,8 @@ def export(
     ] = None,
 ) -> None:
     """Export a result for other tools: trajectory and reference as TUM (evo reads them), map as CSV,
-    occupancy grid as a map_server map (PGM + YAML, for ROS navigation)."""
+    occupancy grid as a map_server map (PGM + YAML, for ROS navigation). A localisation result exports its
+    trajectory and reference (its map is the one it was given)."""
     from pipelines.outputs.export import export_result
 
     if tum is None and map_csv is None and occupancy is None and reference is None:
@@ -63,5 +83,5 @@ def export(
         },
         {"RESULT": result, "--input": input, "INPUT (named in RESULT)": recorded_input(result)},
     )
-    for path in export_result(result, tum, map_csv, occupancy, input, resolution, reference):
+    for path in export_result(result, tum, map_csv, occupancy, input, resolution, reference, _phase):
         typer.echo(f"wrote {path}")

@@ -17,7 +17,14 @@ def localise(
     map_path: Annotated[
         Path, typer.Argument(metavar="MAP", help="The map: a `gslam process` result .mcap or a map_server .yaml.")
     ],
-    input_mcap: Annotated[Path, typer.Argument(metavar="IN", help="Ingested log (MCAP) with odometry and scans.")],
+    input_mcap: Annotated[
+        Path,
+        typer.Argument(
+            metavar="IN",
+            help="Input MCAP from `gslam ingest` with odometry and scans, or a log or bag (ingested first into "
+            "OUT.input.mcap, as `gslam process` does).",
+        ),
+    ],
     output: Annotated[Path, typer.Argument(metavar="OUT", help="Result MCAP.")],
     initial_pose: Annotated[
         tuple[float, float, float] | None,
@@ -39,20 +46,36 @@ def localise(
     skip_scans: Annotated[int, typer.Option("--skip-scans", min=0, help="Start at this scan of IN.")] = 0,
 ) -> None:
     """Localise a log in a saved map: Monte Carlo localisation (KLD-adaptive, scan-matching proposal,
-    recovery from kidnapping), with a tracking / lost state and a fitness score at every scan."""
+    recovery from kidnapping), with a tracking / lost state and a fitness score at every scan. IN may be a
+    raw log or bag, ingested first as `gslam process` does; `gslam eval`, `plot` and `export --tum` read the
+    result."""
     from gslam.localise import LocaliseConfig
     from pipelines.localise.run import LocaliseRequest, localise
 
     if initial_sigma is not None and initial_pose is None:
         fail("--initial-sigma needs --initial-pose")
+    from pipelines.cli.direct_input import ingested_path, needs_ingest, prepare
+    from pipelines.errors import InputError
+
     rrd_path = None if no_rrd else (rrd or output.with_suffix(".rrd"))
+    log_format = needs_ingest(input_mcap, "IN")  # a log or bag rather than an MCAP from gslam ingest
     outputs = {"OUT": output, **({"--rrd": rrd_path} if rrd_path is not None else {})}
+    if log_format is not None:
+        outputs["the ingested input"] = ingested_path(output)
     check_outputs(outputs, {"MAP": map_path, "IN": input_mcap})
     try:
         cfg = LocaliseConfig(seed=seed, max_particles=max_particles, global_particles=global_particles,
                              min_particles=min(100, max_particles))  # fmt: skip
     except ValueError as e:
         fail(str(e))
+    if log_format is not None:
+        if not map_path.exists():  # before the ingest, which may take a while
+            raise InputError(f"{map_path}: no such map file")
+        with reporting("ingest", "messages") as (report, _):
+            direct = prepare(input_mcap, output, report, log_format, "IN")
+        done = "using the earlier ingest" if direct.reused else "ingested it into"
+        typer.echo(f"IN {input_mcap} is a {log_format} log: {done} {direct.mcap} (eval, plot and export read it)")
+        input_mcap = direct.mcap
     request = LocaliseRequest(map_path, input_mcap, output, rrd_path, initial_pose, initial_sigma, cfg, skip_scans)
     with reporting("localise", "scans") as (report, _):
         summary = localise(request, report)

@@ -122,6 +122,14 @@ def process(
             "--live-url", help="The viewer's gRPC address for --live.", show_default="rerun+http://127.0.0.1:9876/proxy"
         ),
     ] = None,
+    keep_viewer: Annotated[
+        bool,
+        typer.Option(
+            "--keep-viewer",
+            help="With --live: leave the Rerun viewer started for it running after the run (by default it is "
+            "stopped when the run ends; a viewer that was already running is always left alone).",
+        ),
+    ] = False,
 ) -> None:
     """Run G-SLAM (or a baseline) over an input MCAP; write the result MCAP and a Rerun recording."""
     from pipelines.outputs.writer_child import start_rerun_writer
@@ -131,6 +139,8 @@ def process(
     # Started first, before numpy and numba are imported: see writer_child.start_rerun_writer.
     rrd_writer = None if rrd_path is None else start_rerun_writer(rrd_path)
     summary = None
+    viewer = None  # the viewer --live streams to
+    failed = False
     try:
         from pipelines.process import process as run_process
         from pipelines.run.options import Setting, parse_set, run_config
@@ -160,12 +170,15 @@ def process(
         if log_format is not None:
             outputs["the ingested input"] = ingested_path(output)
         check_outputs(outputs, {"INPUT": input, "--config": config})
+        if keep_viewer and cfg.live_url is None:
+            fail("--keep-viewer goes with --live (or --live-url)")
         if cfg.live_url is not None:
             if rrd_path is None:
                 fail("--live streams the Rerun recording: it cannot go with --no-rrd")
             from pipelines.outputs.rerun_viewer import live_viewer
 
-            typer.echo(live_viewer(cfg.live_url))
+            viewer = live_viewer(cfg.live_url)
+            typer.echo(viewer.message)
         if log_format is not None:
             with reporting("ingest", "messages") as (report, _):
                 direct = prepare(input, output, report, log_format)
@@ -183,9 +196,15 @@ def process(
 
             typer.echo(f"wrote {summary.rrd}  (open it with: {open_command(summary.rrd)})")
     except BaseException as e:
+        failed = True
         if rrd_writer is not None:
             rrd_writer.abort()  # nothing to do once the run has finished or aborted it
         if isinstance(e, KeyboardInterrupt) and summary is not None:  # a signal after the run was written
             written = " and ".join(str(p) for p in (summary.output, summary.rrd) if p is not None)
             e.add_note(f"wrote {written}: every scan was processed before the signal")
         raise
+    finally:
+        if viewer is not None:  # stopped (or left running) however the run ended; one not started here: left alone
+            said = viewer.end(keep=keep_viewer)
+            if said is not None:
+                typer.echo(said, err=failed)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -12,6 +13,7 @@ import numpy as np
 from mcaplog import channels as ch
 from mcaplog.mcapio import McapInput, Message, read_error
 from pipelines.errors import InputError
+from pipelines.evaluation.mcap_info import message_count
 from pipelines.evaluation.metrics import (
     gps_mean_error,
     gps_mean_error_at_scans,
@@ -55,14 +57,19 @@ class ResultData:
     step_ms: np.ndarray
 
 
-def read_result(path: Path) -> ResultData:
+def read_result(path: Path, progress: Callable[[int, int], None] | None = None) -> ResultData:
+    """The steps, final trajectory and final map of a `gslam process` result; `progress(done, total)` counts
+    the steps read (long logs take seconds)."""
     src = McapInput(path)
     try:
         meta = src.metadata()
     except Exception as e:
         raise InputError(f"{path}: not a readable MCAP file ({read_error(e)})") from None
+    if "localise" in meta:
+        raise InputError(f"{path}: a result of `gslam localise`; this needs a result of `gslam process`")
     if "result" not in meta or "config" not in meta:
         raise InputError(f"{path}: no 'result'/'config' metadata; is this a result of `gslam process`?")
+    total = (message_count(src, ch.SLAM_POSE) or 0) if progress is not None else 0
     t, stamp, online, step_ms = [], [], [], []
     trajectory = None
     map_xy, map_p = np.empty((0, 2)), np.empty(0)
@@ -74,6 +81,8 @@ def read_result(path: Path) -> ResultData:
             stamp.append(ch.t_of(msg.value.timestamp))
             t.append(msg.t_s)
             online.append(pose)
+            if progress is not None:
+                progress(len(t), total)
         elif msg.topic == ch.SLAM_STATS:
             step_ms.append(float(msg.value["step_ms"]))
         elif msg.topic == ch.SLAM_TRAJECTORY:
@@ -151,11 +160,13 @@ def _check_reference(reference: Path) -> McapInput:
 
 
 def recorded_input(result: Path) -> Path | None:
-    """The input MCAP a result names in its metadata (None when it names none or cannot be read)."""
+    """The input MCAP a result (of `gslam process` or `gslam localise`) names in its metadata (None when it
+    names none or cannot be read)."""
     try:
-        path = McapInput(result).metadata().get("input", {}).get("path")
+        meta = McapInput(result).metadata()
     except Exception:  # an unreadable result is reported by the command that reads it
         return None
+    path = meta["localise"].get("input") if "localise" in meta else meta.get("input", {}).get("path")
     return Path(path) if isinstance(path, str) and path else None
 
 

@@ -37,3 +37,16 @@ def mcap_info(path: Path) -> dict[str, Any]:
         "message_count": int(stats.message_count),
         "metadata": metadata,
     }
+
+
+def message_count(src: McapInput, topic: str) -> int | None:
+    """The messages on `topic` by the file's summary section (for progress); None when the file has no
+    summary or it cannot be read."""
+    try:
+        summary = src.summary()
+    except Exception:  # a damaged file is reported by the reading that follows
+        return None
+    if summary is None or summary.statistics is None:
+        return None
+    counts = summary.statistics.channel_message_counts
+    return sum(int(counts.get(cid, 0)) for cid, channel in summary.channels.items() if channel.topic == topic)

@@ -21,9 +21,13 @@ def _legend_below(ax, ncols: int) -> None:
 
 def plot_result(result: Path, out: Path, reference: Path | None = None) -> Path:
     """Draw the result's figure and write it to `out` (PNG, atomically)."""
+    return save_figure(result_figure(result, reference), out)
+
+
+def save_figure(fig, out: Path) -> Path:
+    """Write a matplotlib figure to `out` (PNG, atomically) and close it."""
     import matplotlib.pyplot as plt
 
-    fig = result_figure(result, reference)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = create_temporary(out)

@@ -29,14 +29,13 @@ from mcaplog import channels as ch
 from mcaplog.mcapio import AtomicMcapWriter, to_ns
 from mcaplog.tempfiles import create_temporary
 from pipelines.errors import InputError
+from pipelines.evaluation.localisation import MAP_TOPIC, PARTICLES_TOPIC, POSE_TOPIC, STATE_TOPIC
 from pipelines.localise.maps import SavedMap, load_map
 from pipelines.run.input_log import InputLog, OdomEvent, ScanEvent
 from pipelines.run.odometry_check import ReversalCheck
+from pipelines.run.recorded_input import fingerprint
 
-POSE = "/localise/pose"
-STATE = "/localise/state"
-PARTICLES = "/localise/particles"
-MAP = "/localise/map"
+POSE, STATE, PARTICLES, MAP = POSE_TOPIC, STATE_TOPIC, PARTICLES_TOPIC, MAP_TOPIC
 MAX_PARTICLES_WRITTEN = 1000
 
 STATE_SCHEMA = {
@@ -105,9 +104,75 @@ class LocaliseSummary:
         )
 
 
+RR_MAP = "world/map"
+"""The map's obstacles (static): light points on the dark background, 2 screen points wide at any zoom."""
+RR_ROBOT = "world/robot"
+"""The base's estimate at each scan: an arrow 1 m long along its heading, green while tracking, red while lost."""
+RR_FOOTPRINT = "world/footprint"
+"""A ring of radius `FOOTPRINT_M` round the base, coloured as the arrow: the robot at a glance."""
+RR_PATH = "world/path"
+"""The estimate at each scan as a thin segment from the one before; the map view shows this entity from the
+start of the timeline to the cursor: the path so far."""
+RR_PARTICLES = "world/particles"
+"""The particles' positions at each update."""
+RR_STATS = {"fitness": "stats/fitness", "particles": "stats/particles", "tracking": "stats/tracking"}
+"""The per-scan time series by name."""
+FOOTPRINT_M = 0.35
+TRACKING_RGB = (60, 220, 90)
+LOST_RGB = (235, 60, 60)
+_RING = np.column_stack([np.cos(np.linspace(0, 2 * math.pi, 25)), np.sin(np.linspace(0, 2 * math.pi, 25))])
+
+
+def rerun_blueprint():
+    """The recording's opening layout: the map view over most of the screen (dark background, the path so far
+    up to the time cursor), and under it a strip of the three plots (fitness, particle count, tracking); the
+    side panels collapsed so that the map has the room, the time panel compact."""
+    import rerun.blueprint as rrb
+
+    so_far = rrb.VisibleTimeRanges(
+        [
+            rrb.VisibleTimeRange(
+                timeline, start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.cursor_relative()
+            )
+            for timeline in ("scan", "time")
+        ]
+    )
+    everything = rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite())
+    whole = rrb.TimeAxis(view_range=everything)  # the plots show the whole log, not a window at the cursor
+    return rrb.Blueprint(
+        rrb.Vertical(
+            rrb.Spatial2DView(
+                name="map (y up): green tracking, red lost",
+                origin="/",
+                contents="/world/**",
+                overrides={RR_PATH: so_far},
+                background=[18, 20, 26],
+            ),
+            rrb.Horizontal(
+                rrb.TimeSeriesView(
+                    name="fitness", origin=RR_STATS["fitness"], axis_x=whole, axis_y=rrb.ScalarAxis(range=(0.0, 1.05))
+                ),
+                rrb.TimeSeriesView(name="particles", origin=RR_STATS["particles"], axis_x=whole),
+                rrb.TimeSeriesView(
+                    name="tracking (1) / lost (0)",
+                    origin=RR_STATS["tracking"],
+                    axis_x=whole,
+                    axis_y=rrb.ScalarAxis(range=(-0.05, 1.05)),
+                ),
+            ),
+            row_shares=[4, 1],
+        ),
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.TimePanel(state="collapsed", timeline="time"),
+    )
+
+
 class _RerunOut:
-    """The recording: the map once, then per scan the pose, the path so far, particles at updates and the
-    state as scalars; written to a temporary file and moved into place at the end."""
+    """The recording: the map once; the particles at each update as the run goes; at the end the robot, its
+    footprint, the path and the state's time series for every scan, sent as columns (a few calls for the
+    whole log rather than several per scan). Written to a temporary file with `rerun_blueprint` as its
+    default layout, and moved into place at the end."""
 
     def __init__(self, path: Path, saved: SavedMap, t0_s: float) -> None:
         import rerun as rr
@@ -117,32 +182,67 @@ class _RerunOut:
         fd, self.tmp = create_temporary(path)
         os.close(fd)
         self.rec = rr.RecordingStream("gslam-localise")
-        self.rec.save(str(self.tmp))
-        self.rec.log("world", rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
-        self.rec.log("world/map", rr.Points2D(saved.points, colors=[[200, 200, 200]], radii=0.04), static=True)
-        self.path_xy: list[np.ndarray] = []
+        # Only the log's timelines (`scan`, `time`), as `gslam process`'s recording.
+        self.rec.set_log_time_enabled(False)
+        self.rec.set_log_tick_enabled(False)
+        self.rec.save(str(self.tmp), default_blueprint=rerun_blueprint())
+        ui = rr.components.Radius.ui_points
+        rec = self.rec
+        rec.log("world", rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)  # y up, as on the plots
+        rec.log(RR_MAP, rr.Points2D(saved.points, colors=[[225, 228, 235]], radii=ui(2.0)), static=True)
+        rec.log(RR_PARTICLES, rr.Points2D.from_fields(colors=[[255, 140, 0]], radii=ui(2.0)), static=True)
+        rec.log(RR_ROBOT, rr.Arrows2D.from_fields(radii=ui(3.0)), static=True)
+        rec.log(RR_FOOTPRINT, rr.LineStrips2D.from_fields(radii=ui(2.5)), static=True)
+        rec.log(RR_PATH, rr.LineStrips2D.from_fields(colors=[[255, 215, 60]], radii=ui(1.0)), static=True)
+        for name, colour in (("fitness", [90, 160, 255]), ("particles", [255, 140, 0]), ("tracking", [60, 220, 90])):
+            rec.log(RR_STATS[name], rr.SeriesLines(colors=[colour], names=[name]), static=True)
         self.t0_s = t0_s  # the timeline "time" counts from the log's start, as `gslam process`'s
+        self.scans: list[int] = []
+        self.times_s: list[float] = []
+        self.poses: list[np.ndarray] = []
+        self.tracking: list[bool] = []
+        self.fitness: list[float] = []
+        self.particles: list[int] = []
 
     def step(self, k: int, st: LocaliseStep, base: np.ndarray, particles: np.ndarray | None) -> None:
-        rr, rec = self.rr, self.rec
-        rec.set_time("scan", sequence=k)
-        rec.set_time("time", duration=st.t_s - self.t0_s)
-        colour = [60, 220, 90] if st.tracking else [230, 60, 60]
-        heading = 0.6 * np.array([[math.cos(base[2]), math.sin(base[2])]])
-        rec.log("world/robot", rr.Arrows2D(origins=[base[:2]], vectors=heading, colors=[colour], radii=0.06))
-        self.path_xy.append(base[:2].copy())
-        if k % 200 == 0:  # the whole path so far (every scan would grow the file with the square of the log)
-            rec.log("world/path", rr.LineStrips2D([np.array(self.path_xy)], colors=[[255, 215, 60]], radii=0.03))
+        self.scans.append(k)
+        self.times_s.append(st.t_s - self.t0_s)
+        self.poses.append(np.asarray(base[:3], dtype=float))
+        self.tracking.append(bool(st.tracking))
+        self.fitness.append(float(st.fitness))
+        self.particles.append(int(st.particles))
         if particles is not None:
-            rec.log("world/particles", rr.Points2D(particles[:, :2], colors=[[255, 140, 0]], radii=0.05))
-        rec.log("stats/fitness", rr.Scalars(st.fitness))
-        rec.log("stats/particles", rr.Scalars(float(st.particles)))
-        rec.log("stats/tracking", rr.Scalars(1.0 if st.tracking else 0.0))
+            self.rec.set_time("scan", sequence=k)
+            self.rec.set_time("time", duration=st.t_s - self.t0_s)
+            self.rec.log(RR_PARTICLES, self.rr.Points2D(particles[:, :2]))
 
     def finish(self) -> None:
-        self.rec.log("world/path", self.rr.LineStrips2D([np.array(self.path_xy)], colors=[[255, 215, 60]], radii=0.03))
-        self.rec.flush()
-        self.rec.disconnect()
+        rr, rec = self.rr, self.rec
+        if self.poses:
+            idx = [rr.TimeColumn("scan", sequence=self.scans), rr.TimeColumn("time", duration=self.times_s)]
+            poses = np.array(self.poses)
+            tracking = np.array(self.tracking)
+            colours = np.where(tracking[:, None], TRACKING_RGB, LOST_RGB).astype(np.uint8)
+            heading = np.column_stack([np.cos(poses[:, 2]), np.sin(poses[:, 2])])
+            rec.send_columns(
+                RR_ROBOT,
+                indexes=idx,
+                columns=rr.Arrows2D.columns(origins=poses[:, :2], vectors=heading, colors=colours),
+            )
+            rings = poses[:, None, :2] + FOOTPRINT_M * _RING[None]
+            rec.send_columns(
+                RR_FOOTPRINT, indexes=idx, columns=rr.LineStrips2D.columns(strips=list(rings), colors=colours)
+            )
+            before = np.vstack([poses[:1, :2], poses[:-1, :2]])
+            segments = np.stack([before, poses[:, :2]], axis=1)
+            rec.send_columns(RR_PATH, indexes=idx, columns=rr.LineStrips2D.columns(strips=list(segments)))
+            series = {"fitness": self.fitness, "particles": self.particles, "tracking": tracking}
+            for name, values in series.items():
+                rec.send_columns(
+                    RR_STATS[name], indexes=idx, columns=rr.Scalars.columns(scalars=np.asarray(values, float))
+                )
+        rec.flush()
+        rec.disconnect()
         os.replace(self.tmp, self.path)
 
     def abort(self) -> None:
@@ -152,9 +252,9 @@ class _RerunOut:
             Path(self.tmp).unlink(missing_ok=True)
 
 
-def scan_stream(log: InputLog) -> Iterator[tuple[int, float, np.ndarray, np.ndarray]]:
+def scan_stream(log: InputLog) -> Iterator[tuple[int, float, np.ndarray, np.ndarray, float]]:
     """(scan index, log time, the odometry pose then (the base's, fr079's reversal check applied), the
-    scan's end points in the laser frame (K, 2)) for every scan of an odometry log."""
+    scan's end points in the laser frame (K, 2), the scan's own stamp) for every scan of an odometry log."""
     reversal = ReversalCheck()
     odom = None
     for ev in log.events():
@@ -165,7 +265,8 @@ def scan_stream(log: InputLog) -> Iterator[tuple[int, float, np.ndarray, np.ndar
                 raise InputError(f"{log.path}: scan {ev.index} has no odometry before it")
             scan = Scan(ev.stamp_s, ev.ranges_m, ev.geometry or log.geometry, log.self_return_range_m)
             _, r, b = scan.return_polar()
-            yield ev.index, ev.t_s, np.asarray(odom, dtype=float), np.column_stack([r * np.cos(b), r * np.sin(b)])
+            ends = np.column_stack([r * np.cos(b), r * np.sin(b)])
+            yield ev.index, ev.t_s, np.asarray(odom, dtype=float), ends, ev.stamp_s
 
 
 def localise(req: LocaliseRequest, progress: Callable[[int, int], None] | None = None) -> LocaliseSummary:
@@ -195,6 +296,7 @@ def localise(req: LocaliseRequest, progress: Callable[[int, int], None] | None =
                 "map": str(req.map_path),
                 "map_source": saved.source,
                 "input": str(req.input_path),
+                "input_fingerprint": fingerprint(req.input_path),
                 "initial_pose": list(req.initial_pose) if req.initial_pose is not None else None,
                 "initial_sigma": list(req.initial_sigma) if req.initial_sigma is not None else None,
                 "skip_scans": req.skip_scans,
@@ -204,7 +306,7 @@ def localise(req: LocaliseRequest, progress: Callable[[int, int], None] | None =
         first_t = log.start_s
         cloud = ch.point_cloud(first_t, saved.points, np.ones(len(saved.points)))
         out.write_proto(MAP, cloud, to_ns(first_t))
-        for index, t_s, odom_last, ends in scan_stream(log):
+        for index, t_s, odom_last, ends, stamp_s in scan_stream(log):
             if index < req.skip_scans:
                 odom_prev = odom_last
                 continue
@@ -223,12 +325,12 @@ def localise(req: LocaliseRequest, progress: Callable[[int, int], None] | None =
             step_ms = (time.perf_counter() - t0) * 1e3
             filter_s += step_ms / 1e3
             base = np.asarray(base_of(st.pose[None])[0] if mount is not None else st.pose)
-            _write_step(out, t_s, st, base, odom_last, mount, step_ms)
+            _write_step(out, t_s, stamp_s, st, base, odom_last, mount, step_ms)
             particles = None
             if st.updated:
                 thin = loc.poses[:: max(1, len(loc.poses) // MAX_PARTICLES_WRITTEN)]
                 particles = np.asarray(base_of(thin) if mount is not None else thin)
-                out.write_proto_bytes(PARTICLES, ch.PosesInFrame, ch.poses_in_frame_bytes(t_s, particles,
+                out.write_proto_bytes(PARTICLES, ch.PosesInFrame, ch.poses_in_frame_bytes(stamp_s, particles,
                                       ch.MAP_FRAME), to_ns(t_s))  # fmt: skip
             if rrd is not None:
                 rrd.step(k, st, base, particles)
@@ -285,9 +387,13 @@ def _converged_at(tracking: np.ndarray, travelled: np.ndarray) -> float | None:
     return None if len(idx) == 0 else float(travelled[idx[0]])
 
 
-def _write_step(out, t_s: float, st: LocaliseStep, base: np.ndarray, odom: np.ndarray, mount, step_ms: float) -> None:
+def _write_step(
+    out, t_s: float, stamp_s: float, st: LocaliseStep, base: np.ndarray, odom: np.ndarray, mount, step_ms: float
+) -> None:
+    """The scan's pose, state and transforms, at its log time `t_s`; the messages' own stamps are the scan's
+    `stamp_s`, as `gslam process` stamps /slam/pose and /tf (so `gslam eval` matches the two by stamp)."""
     ns = to_ns(t_s)
-    out.write_proto(POSE, ch.pose_in_frame(t_s, *base, ch.MAP_FRAME), ns)
+    out.write_proto(POSE, ch.pose_in_frame(stamp_s, *base, ch.MAP_FRAME), ns)
     state = {
         "t_s": t_s,
         "x_m": float(base[0]),
@@ -308,4 +414,4 @@ def _write_step(out, t_s: float, st: LocaliseStep, base: np.ndarray, odom: np.nd
     links = [(ch.MAP_FRAME, ch.ODOM_FRAME, *map_to_odom), (ch.ODOM_FRAME, ch.BASE_FRAME, *odom)]
     if mount is not None:
         links.append((ch.BASE_FRAME, ch.LASER_FRAME, *mount.pose))
-    out.write_proto(ch.TF, ch.frame_transforms(t_s, links), ns)
+    out.write_proto(ch.TF, ch.frame_transforms(stamp_s, links), ns)

@@ -5,7 +5,9 @@ foxglove.Grid of /map/occupancy.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -14,6 +16,9 @@ from mcaplog.mcapio import McapInput
 from pipelines.errors import InputError
 from pipelines.outputs.occupancy_grid import FREE, OCCUPIED, GridSpec, OccupancyGrid, ScanCaster, occupied_cells
 from pipelines.run.input_log import InputLog
+
+if TYPE_CHECKING:
+    from pipelines.evaluation.evaluate import ResultData
 
 DEFAULT_RESOLUTION_M = 0.05
 OCCUPIED_THRESH = 0.65
@@ -34,10 +39,13 @@ def build_grid(
     resolution_m: float = DEFAULT_RESOLUTION_M,
     bearing_offset_rad: float = 0.0,
     support_m: float = SUPPORT_M,
+    progress: Callable[[int, int], None] | None = None,
 ) -> OccupancyGrid:
     """The grid of a run: `laser_poses[j]` is where the input's scan number `scan_indices[j]` (increasing)
-    was taken; `map_p` are occupancy probabilities of the map points `map_xy`."""
+    was taken; `map_p` are occupancy probabilities of the map points `map_xy`. `progress(done, total)`
+    counts the input's scans read (a long log takes seconds per thousand scans)."""
     scan_indices = np.asarray(scan_indices, dtype=np.int64)
+    total = int(scan_indices[-1]) + 1 if len(scan_indices) else 0
     spec = GridSpec.around(np.vstack([np.asarray(map_xy).reshape(-1, 2), laser_poses[:, :2]]), resolution_m)
     casts = ScanCaster(spec)
     g = log.geometry
@@ -47,6 +55,8 @@ def build_grid(
     for k, msg in enumerate(log.mcap.messages([ch.LASER])):
         if j == len(scan_indices):
             break
+        if progress is not None:
+            progress(min(k + 1, total), total)
         if k != scan_indices[j]:
             continue
         r = np.asarray(msg.value.ranges, dtype=float)
@@ -93,17 +103,25 @@ def stored_grid(result: Path) -> OccupancyGrid | None:
     return OccupancyGrid(spec, cells.reshape(spec.height, width).copy())
 
 
-def grid_from_result(result: Path, input_path: Path | None = None, resolution_m: float | None = None) -> OccupancyGrid:
+def grid_from_result(
+    result: Path,
+    input_path: Path | None = None,
+    resolution_m: float | None = None,
+    res: ResultData | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> OccupancyGrid:
     """The grid of a result MCAP: the one it holds (`process --occupancy`) when `resolution_m` is None or
     that grid's own, else built again from the input's scans (`input_path`, default the path in the
-    result's metadata) at `resolution_m` (default `DEFAULT_RESOLUTION_M`)."""
-    from pipelines.evaluation.evaluate import read_result
-
+    result's metadata) at `resolution_m` (default `DEFAULT_RESOLUTION_M`). `res`: the result, when read
+    already; `progress`: as `build_grid`'s."""
     stored = stored_grid(result)
     if stored is not None and (resolution_m is None or abs(stored.spec.resolution_m - resolution_m) < 1e-9):
         return stored
     resolution_m = DEFAULT_RESOLUTION_M if resolution_m is None else resolution_m
-    res = read_result(result)
+    if res is None:
+        from pipelines.evaluation.evaluate import read_result
+
+        res = read_result(result)
     meta = res.metadata
     if input_path is None:
         from pipelines.run.recorded_input import recorded_input
@@ -116,9 +134,8 @@ def grid_from_result(result: Path, input_path: Path | None = None, resolution_m:
     laser = res.trajectory if log.mount is None else log.mount.laser_of(res.trajectory)
     config = meta.get("config", {})
     p = occupancy_probabilities(res.map_p, config.get("filter", {}).get("map_update", "binary"))
-    return build_grid(
-        log, np.asarray(scan_indices), laser, res.map_xy, p, resolution_m, float(config.get("laser_yaw_offset_rad", 0))
-    )
+    offset = float(config.get("laser_yaw_offset_rad", 0))
+    return build_grid(log, np.asarray(scan_indices), laser, res.map_xy, p, resolution_m, offset, progress=progress)
 
 
 def pgm_bytes(grid: OccupancyGrid, comment: str = "gslam occupancy grid") -> bytes:

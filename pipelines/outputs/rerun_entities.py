@@ -46,3 +46,7 @@ STATS = {
     "step_ms": STATS_STEP_MS,
 }
 """The per-step statistics by name (their time series)."""
+
+LEGEND = "legend"
+"""What the map's colours mean (a static markdown text document), outside `world` so that the map view
+does not draw it; the default blueprint shows it under the plots."""

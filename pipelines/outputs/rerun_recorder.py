@@ -19,12 +19,15 @@ import importlib.abc
 import os
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from pipelines.outputs import rerun_entities as entity
 from pipelines.outputs import writer_child
+
+if TYPE_CHECKING:
+    import rerun.blueprint as rrb
 
 
 def probability_colors(p: np.ndarray) -> np.ndarray:
@@ -38,7 +41,39 @@ def probability_colors(p: np.ndarray) -> np.ndarray:
     return (np.column_stack([r, g, b, np.ones_like(v)]) * 255).astype(np.uint8)
 
 
-def blueprint():
+MAP_COLOURS = (
+    "**Colours**: map points coloured by probability of an obstacle: blue low -> green -> red high (scaled to "
+    "the map's maximum). Paths: final white, online blue, so far gold; GPS green, scan magenta, particles orange."
+)
+"""The map's colour scale (`probability_colors`) and the lines' colours, in words: logged as a text document
+(`rerun_entities.LEGEND`) that the default blueprint shows under the plots."""
+
+
+SERIES = {
+    "effective_sample_size": ("effective sample size", (130, 200, 70)),
+    "map_points": ("map points", (230, 70, 90)),
+    "step_ms": ("step time [ms]", (70, 190, 210)),
+}
+"""Each statistic (`rerun_entities.STATS`): its plot's title and its line's colour, fixed rather than left to
+the viewer's choice, so that a user (and a screenshot) finds each line by its colour in every recording."""
+
+FINAL_PATH_RADIUS_UI = 1.0
+"""The final path's radius in screen points (a line 2 points wide at any zoom): as thin as the GPS track
+(0.08 m) at the Car Park's usual zoom, so that a corridor's free space stays visible beside it."""
+ONLINE_PATH_RADIUS_UI = 0.75
+"""The online estimate's radius in screen points, under the final path where they agree."""
+
+
+def blueprint() -> rrb.Blueprint:
+    """The default layout: the map (north up) takes three quarters of the width; beside it the three
+    statistics plots and, small, the legend of the colours (`MAP_COLOURS`).
+
+    Each plot shows its statistic from the start up to the time cursor, on a time axis that spans the whole
+    timeline, so that it fills as the run goes (live) or as the cursor moves (replay). Left to the viewer
+    (rerun 0.41), a plot's time axis is a window of +-30 s (+-1000 scans) around the cursor once its data
+    span more than 60 s (2000 scans): a minute of the run rather than the run so far, and in the web viewer,
+    with the cursor put at 60 s of the Car Park log, the plots were drawn empty."""
+    import rerun as rr
     import rerun.blueprint as rrb
 
     so_far = rrb.VisibleTimeRanges(
@@ -49,6 +84,13 @@ def blueprint():
             for timeline in (entity.SCAN_TIMELINE, entity.TIME_TIMELINE)
         ]
     )
+    whole_run = rrb.TimeAxis(
+        view_range=rr.TimeRange(start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite())
+    )
+
+    def plot(name: str) -> rrb.TimeSeriesView:
+        return rrb.TimeSeriesView(name=SERIES[name][0], origin=entity.STATS[name], time_ranges=so_far, axis_x=whole_run)
+
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial2DView(
@@ -59,13 +101,17 @@ def blueprint():
                 background=[18, 20, 26],  # dark: the white final path and the map's colours stand out
             ),
             rrb.Vertical(
-                rrb.TimeSeriesView(name="effective sample size", origin=entity.STATS_EFFECTIVE_SAMPLE_SIZE),
-                rrb.TimeSeriesView(name="map points", origin=entity.STATS_MAP_POINTS),
-                rrb.TimeSeriesView(name="step time [ms]", origin=entity.STATS_STEP_MS),
+                *(plot(name) for name in entity.STATS),
+                rrb.TextDocumentView(name="colours", origin=entity.LEGEND),
+                row_shares=[3, 3, 3, 2],
             ),
             column_shares=[3, 1],
         ),
-        collapse_panels=False,  # the blueprint, selection and time panels open, as a user needs them
+        # The blueprint panel (the entities to show or hide) and the time panel (the cursor) open, as a user
+        # needs them; the selection panel, empty until something is clicked, closed to leave the map the room.
+        rrb.BlueprintPanel(state="expanded"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.TimePanel(state="expanded"),
     )
 
 
@@ -95,13 +141,16 @@ class Recorder:
         else:
             self.rec.save(str(self.path), default_blueprint=blueprint())
         self.rec.log(entity.WORLD, rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)  # y up: entity.WORLD
+        self.rec.log(entity.LEGEND, rr.TextDocument(MAP_COLOURS, media_type=rr.MediaType.MARKDOWN), static=True)
         # Colours and sizes of the per-step points, once for the whole recording (radii in screen points
         # stay visible at any zoom).
         ui = rr.components.Radius.ui_points
         self.rec.log(entity.SCAN, rr.Points2D.from_fields(colors=[[255, 60, 200]], radii=ui(2.0)), static=True)
         self.rec.log(entity.PARTICLES, rr.Points2D.from_fields(colors=[[255, 140, 0]], radii=ui(3.5)), static=True)
         self.rec.log(entity.ROBOT, rr.Arrows2D.from_fields(colors=[[255, 255, 255]], radii=ui(2.5)), static=True)
-        self.rec.log(entity.PATH, rr.LineStrips2D.from_fields(colors=[[255, 215, 60]], radii=ui(2.0)), static=True)
+        self.rec.log(entity.PATH, rr.LineStrips2D.from_fields(colors=[[255, 215, 60]], radii=ui(1.5)), static=True)
+        for name, (title, colour) in SERIES.items():
+            self.rec.log(entity.STATS[name], rr.SeriesLines(colors=[colour], names=[title]), static=True)
         if gps is not None and len(gps):
             self.rec.log(entity.GPS, rr.LineStrips2D([gps[:, 1:3]], colors=[[40, 200, 40]], radii=0.08), static=True)
         if landmarks is not None and len(landmarks):
@@ -156,7 +205,8 @@ class Recorder:
         self.rec.log(entity.MAP, self.rr.Points2D(xy, colors=probability_colors(p), radii=0.07))
 
     def finish(self, final: dict[str, Any]) -> None:
-        """The per-step statistics, the final map and trajectories; then close the file."""
+        """The final map, landmarks, grids and trajectories (the statistics came with the rows, as the run
+        went); then close the file."""
         rr, rec = self.rr, self.rec
         last = final.get("last")
         if last is not None:
@@ -179,10 +229,21 @@ class Recorder:
                     rr.Transform3D(translation=[float(origin[0]), float(origin[1]), 0.0], scale=[cell, cell, 1.0]),
                     rr.Image(rgba, color_model="RGBA", draw_order=-10.0),
                 )
-            # The final path in white (the map's colours run blue to red), the online estimate in blue.
+            # The final path in white (the map's colours run blue to red), the online estimate in blue; thin
+            # lines on top of the rest, so that the free space, the map and the GPS track show beside them.
             ui = rr.components.Radius.ui_points
-            rec.log(entity.TRAJECTORY, rr.LineStrips2D([final["trajectory"]], colors=[[255, 255, 255]], radii=ui(2.5)))
-            rec.log(entity.ONLINE, rr.LineStrips2D([final["online"]], colors=[[60, 120, 255]], radii=ui(1.5)))
+            rec.log(
+                entity.TRAJECTORY,
+                rr.LineStrips2D(
+                    [final["trajectory"]], colors=[[255, 255, 255]], radii=ui(FINAL_PATH_RADIUS_UI), draw_order=40.0
+                ),
+            )
+            rec.log(
+                entity.ONLINE,
+                rr.LineStrips2D(
+                    [final["online"]], colors=[[60, 120, 255]], radii=ui(ONLINE_PATH_RADIUS_UI), draw_order=39.0
+                ),
+            )
         self.finish_file()
 
     def close(self) -> None:
