@@ -233,7 +233,10 @@ class _RerunOut:
             rec.send_columns(
                 RR_FOOTPRINT, indexes=idx, columns=rr.LineStrips2D.columns(strips=list(rings), colors=colours)
             )
-            before = np.vstack([poses[:1, :2], poses[:-1, :2]])
+            # The path joins two scans only where the filter tracks at both: while it is lost its estimate
+            # jumps between candidate places, and a line through them would cross the walls.
+            joined = tracking & np.r_[False, tracking[:-1]]
+            before = np.where(joined[:, None], np.vstack([poses[:1, :2], poses[:-1, :2]]), poses[:, :2])
             segments = np.stack([before, poses[:, :2]], axis=1)
             rec.send_columns(RR_PATH, indexes=idx, columns=rr.LineStrips2D.columns(strips=list(segments)))
             series = {"fitness": self.fitness, "particles": self.particles, "tracking": tracking}
