@@ -318,20 +318,30 @@ class FilterConfig:
 
 
 # Ranges of numeric options: (low, high, low inclusive). Numbers not listed must be >= 0; every number
-# must be finite. Upper bounds keep the arrays the filter allocates to a size a machine holds.
+# must be finite. Upper bounds keep the arrays the filter allocates to a size a machine holds, and keep
+# lengths, angles and noise within what any laser or robot could mean (a 1e300 m cell is accepted by
+# "finite and positive", and gives an empty map, or an overflow in the cell keys, only after the first scan).
+_METRES = 1_000
+"""The bound of a length or a length's noise [m]: beyond any laser's range."""
+_CELL_M = 100
+"""The bound of a cell or a search window [m]: one cell would hold a whole map."""
+_RADIANS = 10
+"""The bound of an angle or an angle's noise [rad]: beyond a full turn, more means nothing more."""
 _LIMITS: dict[str, tuple[float, float, bool]] = {
     "particles": (1, 4096, True),
     "points_per_observation": (1, 1000, True),
     "seed": (0, 2**32 - 1, True),
-    "usable_range_m": (0, math.inf, False),
-    "range_sigma_m": (0, math.inf, False),
-    "hit_sigma_m": (0, math.inf, False),
+    "min_range_m": (0, _METRES, True),
+    "usable_range_m": (0, _METRES, False),
+    "range_sigma_m": (0, _METRES, False),
+    "bearing_sigma_rad": (0, _RADIANS, True),
+    "hit_sigma_m": (0, _METRES, False),
     "hit_ratio": (0, math.inf, False),
     "free_ratio": (0, math.inf, False),
     "free_space_beams": (0, 1000, True),
     "max_points_per_cell": (0, 1000, True),
-    "cell_size_m": (0.01, math.inf, True),
-    "weight_sigma_m": (0, math.inf, False),
+    "cell_size_m": (0.01, _CELL_M, True),
+    "weight_sigma_m": (0, _METRES, False),
     "weight_floor": (0, 1, False),
     "weight_beam_stride": (1, 10_000, True),
     "match_coarse_factor": (1, 64, True),
@@ -340,17 +350,19 @@ _LIMITS: dict[str, tuple[float, float, bool]] = {
     "match_coarse_gate": (0, 64, True),
     "match_coarse_depth": (1, 4, True),
     "prior_neighbours": (1, 64, True),
-    "prior_radius_m": (0, math.inf, False),
+    "prior_radius_m": (0, _CELL_M, False),
     "prior_p0": (0, math.inf, False),
-    "match_sigma_m": (0, math.inf, False),
-    "match_step_xy_m": (0, math.inf, False),
-    "match_step_phi_rad": (0, math.inf, False),
+    "match_sigma_m": (0, _METRES, False),
+    "match_step_xy_m": (0, _CELL_M, False),
+    "match_step_phi_rad": (0, _RADIANS, False),
     "match_levels": (1, 30, True),
     "match_kernel": (0, 20, True),
     "match_sigma_rad": (0, 1, True),
-    "match_cell_m": (0.005, math.inf, True),
+    "match_cell_m": (0.005, _CELL_M, True),
+    "match_line_pair_m": (0, _CELL_M, True),
+    "match_window_margin_m": (0, _CELL_M, True),
     "match_min_p": (0, 1, True),
-    "weight_miss_m": (0, math.inf, False),
+    "weight_miss_m": (0, _METRES, False),
     "weight_gain": (0, math.inf, False),
     "match_max_iterations": (1, 10_000, True),
     "match_polish_iterations": (0, 1_000, True),
@@ -358,10 +370,20 @@ _LIMITS: dict[str, tuple[float, float, bool]] = {
     "match_fine_stride": (1, 10_000, True),
     "match_fine_levels": (0, 64, True),
     "match_min_score": (0, 1, True),
+    "proposal_sigma_xy_m": (0, _METRES, True),
+    "proposal_sigma_phi_rad": (0, _RADIANS, True),
+    "min_travel_m": (0, _METRES, True),
+    "min_turn_rad": (0, _RADIANS, True),
     "resample_threshold": (0, 1, False),
+    "speed_sigma_mps": (0, _METRES, True),
+    "speed_sigma_rel": (0, _METRES, True),
+    "steering_sigma_rad": (0, _RADIANS, True),
+    "odom_sigma": (0, _METRES, True),
     "motion_noise_window": (1, 1_000_000, True),
     "motion_noise_min_scale": (0, 1, True),
     "motion_noise_safety": (0, math.inf, False),
+    "initial_sigma_xy_m": (0, _METRES, True),
+    "initial_sigma_phi_rad": (0, _RADIANS, True),
 }
 
 

@@ -129,5 +129,5 @@ def ingest(
 
     options = ReadOptions(dataset, skip_bad_lines, scan_topic, odom_topic, base_frame)
     log = open_log(source, fmt, options)
-    counts = write_log_mcap(log, Path(output), progress)
+    counts = write_log_mcap(log, Path(output), progress, Path(source))
     return IngestReport(log, Path(output), counts)

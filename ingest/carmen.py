@@ -21,7 +21,7 @@ import numpy as np
 
 from .base import OdomRecord, ReadOptions, Record, RelationsRecord, ScanRecord
 from .logdata import LogData, ScanGeometry
-from .textlog import IngestError, MonotoneClock, text_lines, time_problem
+from .textlog import IngestError, MonotoneClock, odometry_problem, text_lines, time_problem
 
 CARMEN_NO_RETURN_M = 81.9
 """Readings at or beyond this are no return (the SICK LMS reports 81.91 m or so when nothing is hit)."""
@@ -95,7 +95,7 @@ def relations_path_for(path: Path) -> Path:
 def read_relations(path: Path) -> np.ndarray:
     """`t1 t2 dx dy dz droll dpitch dyaw` lines -> (R, 5): t1_s, t2_s, dx_m, dy_m, dyaw_rad."""
     rows = []
-    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+    for lineno, line in text_lines(path, "CARMEN relations file"):
         parts = line.split()
         if not parts or parts[0].startswith("#"):
             continue
@@ -178,8 +178,9 @@ class _Parser:
             return self.bad(lineno, "FLASER field is not a number")
         if not np.isfinite(ranges).all():
             return self.bad(lineno, "FLASER has a non-finite range")
-        if not all(math.isfinite(v) for v in (ox, oy, oth)) or time_problem(t):
-            return self.bad(lineno, time_problem(t) or "FLASER has a non-finite odometry pose")
+        why = time_problem(t) or odometry_problem(ox, oy, oth)
+        if why is not None:
+            return self.bad(lineno, f"FLASER {why}")
         if (ranges < 0).any():
             return self.bad(lineno, f"negative range {ranges[ranges < 0][0]} m at beam {int(np.argmax(ranges < 0))}")
         self.beam_count = n
@@ -195,8 +196,9 @@ class _Parser:
             t = float(parts[7])
         except ValueError:
             return self.bad(lineno, "ODOM field is not a number")
-        if not all(math.isfinite(v) for v in (x, y, th)) or time_problem(t):
-            return self.bad(lineno, time_problem(t) or "ODOM has a non-finite pose")
+        why = time_problem(t) or odometry_problem(x, y, th, speed_mps=tv, turn_rate_radps=rv)
+        if why is not None:
+            return self.bad(lineno, f"ODOM {why}")
         return _Event("odom", t, (x, y, th, tv, rv))
 
 

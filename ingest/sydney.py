@@ -10,7 +10,7 @@ from __future__ import annotations
 import heapq
 import math
 from array import array
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -21,7 +21,16 @@ from gslam.vehicle import vehicle_preset
 
 from .base import AckermannRecord, GpsRecord, LandmarksRecord, ReadOptions, Record, ScanRecord, TruthPoseRecord
 from .logdata import _PRIORITY, LogData, ScanGeometry
-from .textlog import IngestError, MonotoneClock, NumericCsv, check_times, parse_numeric_csv
+from .textlog import (
+    MAX_SPEED_MPS,
+    MAX_STEERING_RAD,
+    IngestError,
+    MonotoneClock,
+    NumericCsv,
+    check_times,
+    odometry_problem,
+    parse_numeric_csv,
+)
 
 SYDNEY_BEAMS = 361
 SYDNEY_GEOMETRY = ScanGeometry(
@@ -106,9 +115,21 @@ class _Pass:
     backwards: int = 0
 
 
-def _first_pass(path: Path, columns: int, skip_bad_lines: bool, row_check=None) -> _Pass:
-    """Check every line of one file (`row_check(lineno, values)` may drop a row by returning False)."""
-    found = _Pass(path, NumericCsv(path, columns, skip_bad_lines, time_column=0))
+def _drs_problem(values: list[float]) -> str | None:
+    """Why a DRS.txt row (t, speed, steering) is not a vehicle's odometry (`odometry_problem`), else None."""
+    return odometry_problem(speed_mps=values[1], steering_rad=values[2])
+
+
+def _first_pass(
+    path: Path,
+    columns: int,
+    skip_bad_lines: bool,
+    row_check: Callable[[int, list[float]], bool] | None = None,
+    check: Callable[[list[float]], str | None] | None = None,
+) -> _Pass:
+    """Check every line of one file (`check(values)`, as `NumericCsv`'s, refuses a row as malformed;
+    `row_check(lineno, values)` may drop a row by returning False)."""
+    found = _Pass(path, NumericCsv(path, columns, skip_bad_lines, time_column=0, check=check))
     last = math.nan
     for lineno, values in found.csv.rows():
         if row_check is not None and not row_check(lineno, values):
@@ -152,7 +173,7 @@ class SydneyTextStream:
         drs_path = directory / "DRS.txt"
         if not drs_path.exists():
             raise IngestError(f"{drs_path}: file not found (a Sydney text log needs DRS.txt)")
-        self.drs = _first_pass(drs_path, 3, skip_bad_lines)
+        self.drs = _first_pass(drs_path, 3, skip_bad_lines, check=_drs_problem)
         self._report(self.drs)
         gps_path = directory / "GPS.txt"
         self.gps: _Pass | None = None
@@ -244,7 +265,10 @@ class SydneyTextStream:
         return meta
 
     def _rows(self, found: _Pass) -> Iterator[tuple[int, list[float]]]:
-        return NumericCsv(found.path, found.csv.columns, self.skip_bad_lines, time_column=0).rows()
+        """The good rows of a file the first pass checked (with the same checks, so the same rows)."""
+        return NumericCsv(
+            found.path, found.csv.columns, self.skip_bad_lines, time_column=0, check=found.csv.check
+        ).rows()
 
     def _scans(self) -> Iterator[tuple[int, list[float]]]:
         """LASER.txt's kept rows (no negative range)."""
@@ -422,6 +446,23 @@ def _finite(path: Path, name: str, a: np.ndarray) -> np.ndarray:
     return a
 
 
+def _check_odometry(path: Path, names: tuple[str, str], ack: np.ndarray) -> None:
+    """Refuse speed and steering (columns 1 and 2 of `ack`, MATLAB variables `names`) that are not a
+    vehicle's (`odometry_problem`), naming the variable and the first bad index."""
+    with np.errstate(invalid="ignore"):
+        bad = ~(np.abs(ack[:, 1]) <= MAX_SPEED_MPS) | ~(np.abs(ack[:, 2]) <= MAX_STEERING_RAD)
+    if not bad.any():
+        return
+    i = int(np.argmax(bad))
+    speed, steering = float(ack[i, 1]), float(ack[i, 2])
+    for name, why in (
+        (names[0], odometry_problem(speed_mps=speed)),
+        (names[1], odometry_problem(steering_rad=steering)),
+    ):
+        if why is not None:
+            raise IngestError(f"{path}: variable {name!r} index {i}: {why}")
+
+
 def read_sydney_mat(directory: Path, skip_bad_lines: bool = False) -> LogData:
     """Car Park `data_set.mat` (+ `beac_juan3.mat`), or Victoria Park `aa3_dr.mat`, `aa3_gpsx.mat` and,
     when present, `aa3_lsr2.mat`."""
@@ -441,6 +482,7 @@ def _read_carpark_mat(directory: Path) -> LogData:
         path, Time_VS=_var(m, path, "Time_VS"), Velocity=_var(m, path, "Velocity"), Steering=_var(m, path, "Steering")
     )
     _finite(path, "Time_VS/Velocity/Steering", ack)
+    _check_odometry(path, ("Velocity", "Steering"), ack)
     t_vs = ack[:, 0]
     gps = _columns(
         path, TimeGPS=_var(m, path, "TimeGPS"), GPSLon=_var(m, path, "GPSLon"), GPSLat=_var(m, path, "GPSLat")
@@ -495,6 +537,7 @@ def _read_victoria_mat(directory: Path, skip_bad_lines: bool) -> LogData:
     ack[:, 0] /= 1000.0
     check_times(dr_path, "time", ack[:, 0])
     _finite(dr_path, "time/speed/steering", ack)
+    _check_odometry(dr_path, ("speed", "steering"), ack)
     _check_times(str(dr_path), ack[:, 0], warnings)
     log = LogData(
         dataset=_dataset_name(directory),

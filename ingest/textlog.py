@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -25,6 +25,47 @@ def time_problem(t_s: float) -> str | None:
     return None
 
 
+MAX_ODOM_POSITION_M = 1e6
+"""The largest odometry coordinate taken (1000 km from the odometry's origin): beyond it a pose is a corrupt
+value (1e300), not a drive, and its differences would lose the centimetres the filter works in."""
+MAX_HEADING_RAD = 1e6
+"""The largest odometry heading taken (about 160 000 turns, for odometry that does not wrap its angle)."""
+MAX_SPEED_MPS = 1e3
+"""The largest odometry speed taken (3600 km/h)."""
+MAX_TURN_RATE_RADPS = 1e3
+"""The largest odometry turn rate taken (about 160 turns a second)."""
+MAX_STEERING_RAD = math.pi / 2
+"""The largest steering angle taken: an Ackermann vehicle's wheels turn less than 90 degrees either way (a
+larger value is most likely in degrees, or corrupt)."""
+
+
+def odometry_problem(
+    x_m: float = 0.0,
+    y_m: float = 0.0,
+    theta_rad: float = 0.0,
+    speed_mps: float = 0.0,
+    turn_rate_radps: float = 0.0,
+    steering_rad: float = 0.0,
+) -> str | None:
+    """Why these odometry values cannot be a vehicle's (non-finite, or an absurd magnitude: see the MAX_
+    bounds above), or None when they can. The filter would integrate such a value into every particle's
+    pose without complaint, so readers refuse it naming file and line."""
+    values = {
+        "x": (x_m, MAX_ODOM_POSITION_M, "m"),
+        "y": (y_m, MAX_ODOM_POSITION_M, "m"),
+        "theta": (theta_rad, MAX_HEADING_RAD, "rad"),
+        "speed": (speed_mps, MAX_SPEED_MPS, "m/s"),
+        "turn rate": (turn_rate_radps, MAX_TURN_RATE_RADPS, "rad/s"),
+        "steering": (steering_rad, MAX_STEERING_RAD, "rad"),
+    }
+    for name, (v, bound, unit) in values.items():
+        if not math.isfinite(v):
+            return f"odometry {name} is {v} (not a finite number)"
+        if abs(v) > bound:
+            return f"odometry {name} {v:g} {unit} is beyond +-{bound:g} {unit} (not a vehicle's odometry)"
+    return None
+
+
 def check_times(path: Path, name: str, t_s: np.ndarray) -> None:
     """Refuse an array of times (a MATLAB variable) with a time no MCAP log time can hold."""
     bad = ~((t_s >= 0) & (t_s <= MAX_TIME_S))
@@ -43,6 +84,9 @@ class Table:
     drop_reasons: list[str] = field(default_factory=list)
 
 
+UTF8_BOM = b"\xef\xbb\xbf"
+"""The byte order mark some editors (Windows Notepad, Excel's "CSV UTF-8") write at the start of a text file."""
+
 MAX_LINE_BYTES = 1 << 20
 """The longest line a text log may have (1 MiB; a Sydney LASER.txt line of 361 ranges is about 3 kB, a
 CARMEN FLASER line of 1 081 beams about 10 kB): a file without line breaks is refused, not read whole."""
@@ -54,7 +98,9 @@ def text_lines(
     """(line number, text) of a text log read a line at a time, so memory stays flat in its length. Lines
     are numbered as `str.splitlines` splits them (as `Path.read_text().splitlines()` does). `gzip_ok`:
     a gzip file is read through; `latin1_fallback`: a line that is not UTF-8 is read as Latin-1 (else it
-    is refused); `kind` names the format in the refusal of an overlong line."""
+    is refused); `kind` names the format in the refusal of an overlong line. A UTF-8 byte order mark at the
+    start of the file is dropped: it is not part of the first line (read as text, it would make the first
+    line's first field unreadable, and that line, a scan, dropped)."""
     import gzip
     import zlib
 
@@ -76,6 +122,8 @@ def text_lines(
                 raise IngestError(f"{path}: corrupt gzip data ({e})") from None
             if not raw:
                 return
+            if offset == 0 and raw.startswith(UTF8_BOM):
+                raw, offset = raw[len(UTF8_BOM) :], len(UTF8_BOM)
             if len(raw) > MAX_LINE_BYTES:
                 raise IngestError(f"{path}:{lineno + 1}: a line longer than {MAX_LINE_BYTES >> 20} MiB: not a {kind}")
             try:
@@ -94,7 +142,8 @@ class NumericCsv:
     """A comma-separated numeric log, checked and read a row at a time (`rows()`).
 
     Every non-empty line must have `columns` finite numbers (when `columns` is None, the first data
-    line sets the count), with a time a log time can hold in `time_column` (when given). A malformed
+    line sets the count), with a time a log time can hold in `time_column` (when given), and passing
+    `check(values)` (when given: None, or why the row is bad, e.g. `odometry_problem`). A malformed
     line raises `IngestError("file:line: why")`, or with `skip_bad_lines` is dropped and counted
     (`dropped`, `drop_reasons`). A file with no data line raises `IngestError`. `text` parses a string
     instead of the file.
@@ -107,9 +156,10 @@ class NumericCsv:
         skip_bad_lines: bool = False,
         time_column: int | None = None,
         text: str | None = None,
+        check: Callable[[list[float]], str | None] | None = None,
     ) -> None:
         self.path, self.columns, self.skip_bad_lines = path, columns, skip_bad_lines
-        self.time_column, self.text = time_column, text
+        self.time_column, self.text, self.check = time_column, text, check
         self.dropped = 0
         self.drop_reasons: list[str] = []
 
@@ -117,7 +167,10 @@ class NumericCsv:
         """(1-based line number, values) of every good data line, in file order."""
         path, columns = self.path, self.columns
         self.dropped, self.drop_reasons = 0, []
-        lines = text_lines(path) if self.text is None else enumerate(self.text.splitlines(), start=1)
+        if self.text is None:
+            lines = text_lines(path)
+        else:
+            lines = enumerate(self.text.removeprefix("\ufeff").splitlines(), start=1)
         found = False
         for lineno, raw in lines:
             line = raw.strip()
@@ -136,8 +189,11 @@ class NumericCsv:
                 else:
                     if not all(math.isfinite(v) for v in values):
                         why = "non-finite value (NaN or infinity)"
-                    elif self.time_column is not None:
-                        why = time_problem(values[self.time_column])
+                    else:
+                        if self.time_column is not None:
+                            why = time_problem(values[self.time_column])
+                        if why is None and self.check is not None:
+                            why = self.check(values)
             if why is not None:
                 if not self.skip_bad_lines:
                     raise IngestError(f"{path}:{lineno}: {why}")

@@ -22,6 +22,7 @@ from .base import (
     ScanRecord,
     TruthPoseRecord,
 )
+from .textlog import IngestError
 
 
 def _none_if_nan(v: float) -> float | None:
@@ -77,9 +78,12 @@ def _write(writer: AtomicMcapWriter, ns: int, rec: Record) -> tuple[str, ...]:
     raise TypeError(f"unknown record {type(rec).__name__}")
 
 
-def write_log_mcap(log: LogStream, out: Path, progress: Callable[[int, int], None] | None = None) -> dict[str, int]:
+def write_log_mcap(
+    log: LogStream, out: Path, progress: Callable[[int, int], None] | None = None, source: Path | None = None
+) -> dict[str, int]:
     """Stream `log` into `out` atomically (nothing is left at `out` on an error or interruption);
-    returns the message count per topic."""
+    returns the message count per topic. A log with no record at all is refused (IngestError naming
+    `source`): an MCAP of nothing is no log."""
     counts: dict[str, int] = {}
     writer = AtomicMcapWriter(out)
     try:
@@ -91,6 +95,8 @@ def write_log_mcap(log: LogStream, out: Path, progress: Callable[[int, int], Non
                 progress(n, max(log.expected_records or 0, n))
         if progress is not None:
             progress(n, n)
+        if not counts:  # an MCAP with no message is no log: say so rather than write one
+            raise IngestError(f"{source or log.dataset}: holds no scan, odometry or GPS record; nothing to ingest")
         meta = log.metadata()
         meta["dataset"]["written"] = counts
         meta["ingest"] = {

@@ -27,6 +27,7 @@ from mcap_protobuf.decoder import DecoderFactory
 from mcap_protobuf.schema import register_schema
 
 from .tempfiles import create_temporary
+from .tempfiles import replace as replace_temporary
 from .writer import McapWriter
 
 NS = 1_000_000_000
@@ -117,7 +118,7 @@ class AtomicMcapWriter:
             try:
                 self._writer.finish()
                 self._file.close()
-                os.replace(self.tmp_path, self.path)
+                replace_temporary(self.tmp_path, self.path)
             except OSError as e:  # disk full, I/O error: nothing at the final path, the error names it
                 self.abort()
                 raise OSError(e.errno, e.strerror, str(self.path)) from None
@@ -165,6 +166,7 @@ class McapInput:
         require_regular_file(self.path, "an MCAP file")
 
     def _reader(self, f):
+        check_finished(f)
         return make_reader(f, decoder_factories=[DecoderFactory()])
 
     def metadata(self) -> dict[str, dict[str, Any]]:
@@ -220,13 +222,54 @@ class McapInput:
                 yield Message(channel.topic, log_time / NS, log_time, value)
 
 
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+"""The 8 bytes an MCAP begins and ends with."""
+MIN_FINISHED_BYTES = 2 * len(MCAP_MAGIC) + 9 + 20
+"""The smallest finished MCAP: the magic, a footer record (opcode, length, 20 bytes) and the magic again."""
+
+
+class TruncatedMcap(ValueError):
+    """An MCAP that begins as one but does not end with its footer and closing magic: cut short, as the
+    temporary of a writer killed mid-write (`.NAME.PID-START-RANDOM.tmp`) or a partial copy is. Its
+    message says so in words (the mcap library would say "RecordLengthLimitExceeded", reading garbage as
+    the footer)."""
+
+
+def check_finished(f: Any) -> None:
+    """Raise `TruncatedMcap` when the open file `f` begins with the MCAP magic (or a part of it) but does not
+    end as a finished MCAP; a file that does not begin so is left to the library (`read_error` words it)."""
+    size = f.seek(0, os.SEEK_END)
+    f.seek(0)
+    head = f.read(len(MCAP_MAGIC))
+    f.seek(0)
+    if head != MCAP_MAGIC[: len(head)]:
+        return
+    if size == 0:
+        raise TruncatedMcap("it is empty (0 bytes), not a finished MCAP")
+    tail = b""
+    if size >= MIN_FINISHED_BYTES:
+        f.seek(size - len(MCAP_MAGIC))
+        tail = f.read(len(MCAP_MAGIC))
+        f.seek(0)
+    if tail != MCAP_MAGIC:
+        raise TruncatedMcap(
+            f"truncated after {size} bytes: no MCAP footer at its end, so not a finished MCAP; a run killed "
+            f"while writing it leaves such a file"
+        )
+
+
 def read_error(e: BaseException) -> str:
     """What went wrong reading an MCAP, for a one-line message: never the file's bytes (the mcap library
-    puts the first bytes of a file that is not an MCAP in its message), printable, at most 160 characters."""
-    from mcap.exceptions import InvalidMagic
+    puts the first bytes of a file that is not an MCAP in its message), nor the library's names for a file
+    cut short (`TruncatedMcap`), printable, at most 160 characters."""
+    from mcap.exceptions import EndOfFile, InvalidMagic, RecordLengthLimitExceeded
 
     if isinstance(e, InvalidMagic):
         return "it does not begin with the MCAP magic bytes"
+    if isinstance(e, TruncatedMcap):
+        return str(e)
+    if isinstance(e, (EndOfFile, RecordLengthLimitExceeded)):
+        return "a record runs past the end of the file or claims an impossible length: it is truncated or damaged"
     text = f"{type(e).__name__}: {e}".splitlines()[0] if str(e) else type(e).__name__
     text = re.sub(r"b'[^']*'|b\"[^\"]*\"", "<bytes>", text)  # byte strings of the file's content
     text = "".join(c if c.isprintable() else "?" for c in text)

@@ -11,6 +11,12 @@ that writes NAME removes the temporaries of NAME that it can prove are stale (`r
 a regular file (not a symlink), owned by this user, whose recorded process is gone or is another process
 now (same id, other start time). Anything else beside the output is left alone. `describe_temporary`
 says what such a file is, for `gslam info`.
+
+Only a regular file (or nothing) is ever replaced: renaming a temporary over a device, a FIFO, a socket, a
+directory or a symlink (`-o /dev/stdout`, a link to `/proc/self/fd/1`) would put a regular file where it
+was, which as root replaces `/dev/null` or `/dev/stdout` for every program. `create_temporary` and
+`replace` refuse such a path (`NotRegularFileError`), the last guard behind the commands' own check of
+their outputs.
 No dependency on the rest of the project: ingest, the pipelines and the writers all use it.
 """
 
@@ -103,14 +109,72 @@ def remove_stale_temporaries(path: Path) -> list[Path]:
     return removed
 
 
+class NotRegularFileError(OSError):
+    """An output path exists and is not a regular file (a device, FIFO, socket or directory, or a symlink
+    to one): it is never replaced. An OSError naming the path, so the CLI prints it as `path: reason`."""
+
+
+def file_kind(mode: int) -> str:
+    """What a file of this `st_mode` is, in words ("a FIFO", "a character device", ...)."""
+    kinds = (
+        (stat.S_ISDIR, "a directory"),
+        (stat.S_ISFIFO, "a FIFO (named pipe)"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISSOCK, "a socket"),
+        (stat.S_ISREG, "a regular file"),
+    )
+    return next((word for test, word in kinds if test(mode)), "not a regular file")
+
+
+def describe_non_regular(path: Path) -> str | None:
+    """What stands at `path` when it exists and is not a regular file, in words ("a FIFO (named pipe)",
+    "a symlink (to /dev/null, a character device)"); None when nothing is there or a regular file is. A
+    symlink counts as not a regular file whatever it points to: renaming onto it replaces the link, and
+    `/dev/stdout` is one (to `/proc/self/fd/1`, a regular file when the output is redirected to one)."""
+    try:
+        st = os.lstat(path)
+    except OSError:
+        return None
+    if stat.S_ISREG(st.st_mode):
+        return None
+    if not stat.S_ISLNK(st.st_mode):
+        return file_kind(st.st_mode)
+    target = os.path.realpath(path)
+    try:
+        to = file_kind(os.stat(path).st_mode)
+    except OSError:
+        to = "which does not exist"
+    return f"a symlink (to {target}, {to})"
+
+
+def check_replaceable(path: Path) -> None:
+    """Raise NotRegularFileError when `path` exists and is not a regular file (a directory, device, FIFO,
+    socket or symlink): only a regular file, or nothing, may be replaced by an output. Never opens it."""
+    what = describe_non_regular(path)
+    if what is not None:
+        raise NotRegularFileError(
+            errno.EEXIST, f"exists and is {what}: an output replaces only a regular file", str(path)
+        )
+
+
+def replace(tmp: Path, path: Path) -> None:
+    """Move the finished temporary `tmp` to `path` (`os.replace`), unless `path` has become something
+    other than a regular file meanwhile (NotRegularFileError; the temporary is left to the caller)."""
+    check_replaceable(path)
+    os.replace(tmp, path)
+
+
 def glob_escape(name: str) -> str:
     return re.sub(r"([*?\[])", r"[\1]", name)
 
 
 def create_temporary(path: Path) -> tuple[int, Path]:
     """Create this process's new temporary for `path` (after removing stale ones): an open descriptor
-    for writing and its path. Never opens an existing file or follows a symlink."""
+    for writing and its path. Never opens an existing file or follows a symlink. NotRegularFileError when
+    `path` exists and is not a regular file: nothing could be renamed onto it."""
     path = Path(path)
+    check_replaceable(path)
     remove_stale_temporaries(path)
     for _ in range(100):
         tmp = path.with_name(f".{path.name}.{os.getpid()}-{_own_start()}-{secrets.token_hex(6)}.tmp")
@@ -139,7 +203,10 @@ def write_atomic(path: Path, content: str | bytes) -> Path:
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
-        os.replace(tmp, path)
+        replace(tmp, path)
+    except NotRegularFileError:
+        tmp.unlink(missing_ok=True)
+        raise
     except OSError as e:
         tmp.unlink(missing_ok=True)
         raise OSError(e.errno, e.strerror, str(path)) from None

@@ -223,17 +223,18 @@ def _run_steps(
                 if spent_ms > 0:
                     compiled_ms += spent_ms
                     st = dataclasses.replace(st, step_ms=max(0.0, st.step_ms - spent_ms))
-                for w in run.writers:
-                    w.step(st, run.runner.output_filter)
-                now = time.perf_counter()
-                times.step_ms.append(max(0.0, (now - t_prev) * 1e3 - max(spent_ms, 0.0)))
-                t_prev = now
-                times.filter_ms.append(st.step_ms)
-                times.scan_indices.append(st.event.index)
-                if st.result.updated:
-                    times.update_ms.append(st.step_ms)
-                times.first_t = st.event.t_s if times.first_t is None else times.first_t
-                times.last_t = st.event.t_s
+                with interrupts.whole_step:  # a signal waits: the step is written and counted whole
+                    for w in run.writers:
+                        w.step(st, run.runner.output_filter)
+                    now = time.perf_counter()
+                    times.step_ms.append(max(0.0, (now - t_prev) * 1e3 - max(spent_ms, 0.0)))
+                    t_prev = now
+                    times.filter_ms.append(st.step_ms)
+                    times.scan_indices.append(st.event.index)
+                    if st.result.updated:
+                        times.update_ms.append(st.step_ms)
+                    times.first_t = st.event.t_s if times.first_t is None else times.first_t
+                    times.last_t = st.event.t_s
                 if progress is not None:
                     progress(st.event.index + 1, total, st.step_ms)
             interrupts.hold()  # from here a signal waits for the outputs (a signal before it is caught below)

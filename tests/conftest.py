@@ -54,6 +54,22 @@ def mit_mcap(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.fixture(scope="module")
+def small(tmp_path_factory) -> dict[str, Path]:
+    """A tiny simulated Sydney log's input MCAP and a result of it (one per test module: tests write
+    beside them)."""
+    from test_reliability import write_log
+
+    from ingest import ingest
+    from pipelines.process import process
+    from pipelines.run.runner import RunConfig
+
+    d = tmp_path_factory.mktemp("small")
+    ingest(write_log(d / "log"), d / "in.mcap")
+    process(d / "in.mcap", d / "r.mcap", None, RunConfig())
+    return {"dir": d, "in": d / "in.mcap", "result": d / "r.mcap"}
+
+
 def pytest_collection_modifyitems(config, items):
     """Tests marked `fuzz` (the long profile) run only when `-m` selects them."""
     if "fuzz" in (config.getoption("markexpr") or ""):

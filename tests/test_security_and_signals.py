@@ -19,18 +19,6 @@ from test_reliability import fingerprint, one_line_refusal, run, write_log
 from ingest import ingest
 
 
-@pytest.fixture(scope="module")
-def small(tmp_path_factory) -> dict[str, Path]:
-    """A tiny Sydney log's input MCAP and a result of it."""
-    from pipelines.process import process
-    from pipelines.run.runner import RunConfig
-
-    d = tmp_path_factory.mktemp("small")
-    ingest(write_log(d / "log"), d / "in.mcap")
-    process(d / "in.mcap", d / "r.mcap", None, RunConfig())
-    return {"dir": d, "in": d / "in.mcap", "result": d / "r.mcap"}
-
-
 def _cli(args: list, env_extra: dict[str, str] | None = None, **kw) -> subprocess.Popen:
     env = dict(os.environ, GSLAM_PROGRESS_EVERY_S="0.05", GSLAM_PROGRESS="", **(env_extra or {}))
     cmd = [sys.executable, "-m", "pipelines.cli", *map(str, args)]

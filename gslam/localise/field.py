@@ -18,6 +18,27 @@ from numba import njit
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
+MAX_FIELD_CELLS = 100_000_000
+"""The largest likelihood field built: as many cells as the largest occupancy grid gslam writes
+(`pipelines.outputs.occupancy_grid.MAX_CELLS`), so every map `gslam export` writes can be localised in: a map
+of 500 m x 500 m at 5 cm. Building one takes about 50 bytes a cell at its peak (scipy's distance transform
+and the exact distances; 9 bytes a cell are kept), 5 GB at the cap; a larger map is refused before anything
+is allocated, with its extent, rather than exhausting memory (two points 3 km apart on a diagonal make a
+field of 1.8e9 cells)."""
+
+
+def check_field_size(nx: float, ny: float, cell_m: float, what: str) -> None:
+    """Refuse a field of `nx` x `ny` cells of `cell_m` over `MAX_FIELD_CELLS`; `what` says where its size
+    comes from (the map's extent), for the message. Called before any array of that size exists; floats, so
+    that an absurd extent is measured rather than overflowing."""
+    cells = float(nx) * float(ny)
+    if cells > MAX_FIELD_CELLS:
+        raise ValueError(
+            f"{what}: its likelihood field at {cell_m:g} m would be {nx:.6g} x {ny:.6g} = {cells:.3g} cells, over "
+            f"the {MAX_FIELD_CELLS:.0e} that localisation builds (about {50 * MAX_FIELD_CELLS / 1e9:.0f} GB while "
+            "it is built)"
+        )
+
 
 @dataclass(frozen=True)
 class LikelihoodField:
@@ -43,6 +64,8 @@ class LikelihoodField:
         """From an occupancy grid (rows along y): `occupied` cells are obstacles; `free` cells (None: every
         cell) farther than `clearance_m` from an obstacle are where the robot may stand."""
         occupied = np.asarray(occupied, dtype=bool)
+        ny, nx = occupied.shape
+        check_field_size(nx, ny, cell_m, f"the map is {nx} x {ny} cells")
         if not occupied.any():
             raise ValueError("the map has no obstacles to localise against")
         dist = ndimage.distance_transform_edt(~occupied) * cell_m
@@ -69,9 +92,19 @@ class LikelihoodField:
         xy = np.asarray(xy, dtype=float).reshape(-1, 2)
         if len(xy) == 0:
             raise ValueError("the map has no obstacles to localise against")
+        bad = int((~np.isfinite(xy).all(axis=1)).sum())
+        if bad:
+            raise ValueError(f"{bad} of the map's {len(xy)} points are not finite numbers")
         margin = reach_m + cell_m
         lo = xy.min(axis=0) - margin
-        shape = (np.ceil((xy.max(axis=0) + margin - lo) / cell_m).astype(int) + 1)[::-1]
+        span = xy.max(axis=0) - xy.min(axis=0)
+        size = np.ceil((xy.max(axis=0) + margin - lo) / cell_m) + 1  # floats: an absurd extent does not overflow
+        where = (  # the extent and the bounds: a few points far off (a bad result) show there
+            f"the map spans {span[0]:.6g} m x {span[1]:.6g} m (x {xy[:, 0].min():.6g} to {xy[:, 0].max():.6g}, "
+            f"y {xy[:, 1].min():.6g} to {xy[:, 1].max():.6g} m)"
+        )
+        check_field_size(size[0], size[1], cell_m, where)
+        shape = size.astype(int)[::-1]
         occupied = np.zeros(shape, dtype=bool)
         ij = np.floor((xy - lo) / cell_m).astype(int)
         occupied[ij[:, 1], ij[:, 0]] = True

@@ -62,7 +62,7 @@ class SweepSpec:
         if unknown:
             where = where_in_toml(path, text, None, unknown[0])
             raise OptionError(f"{where}: unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(SPEC_KEYS))}")
-        if "inputs" not in data or not data["inputs"]:
+        if "inputs" not in data:
             raise OptionError(f"{path}: 'inputs' (a list of MCAP paths) is required")
         options = data.get("options", {})
         if not isinstance(options, dict):
@@ -99,6 +99,11 @@ class SweepSpec:
                 f"available: {', '.join(METHODS)}"
             )
         base = Path(path).parent
+        _check_axis(where("inputs"), "inputs", inputs, [os.path.normpath(base / p) for p in inputs])
+        axes = [(key, None, as_list(data[key])) for key in ("methods", "particles", "points", "seeds") if key in data]
+        axes += [(key, "options", as_list(values)) for key, values in options.items()]
+        for key, table, values in axes:
+            _check_axis(where(key, table), key if table is None else f"[{table}] {key}", values)
         return cls(
             inputs=[str(p if Path(p).is_absolute() else (base / p)) for p in inputs],
             methods=as_list(data.get("methods", ["gslam"])),
@@ -111,6 +116,7 @@ class SweepSpec:
         )
 
     def tasks(self) -> list[dict[str, Any]]:
+        """Every combination of the axes, each a task dict with its `task_id`."""
         names = sorted(self.options)
         out = []
         for inp, method, n, m, combo, seed in itertools.product(
@@ -135,6 +141,23 @@ class SweepSpec:
             task["id"] = task_id(task)
             out.append(task)
         return out
+
+
+def _check_axis(where: str, name: str, values: list[Any], same: list[str] | None = None) -> None:
+    """Refuse an axis of the sweep that is an empty list (the product would have no task, and the sweep would
+    write an empty table as if it had run) or that lists a value twice (the two tasks would have one task id
+    and write the same directory at once). `same[i]` says what `values[i]` stands for (default: its JSON)."""
+    from pipelines.errors import OptionError
+
+    if not values:
+        leave = " (or leave the key out)" if name != "inputs" else ""
+        raise OptionError(f"{where}: '{name}' is an empty list; give at least one value{leave}")
+    seen: set[str] = set()
+    for i, v in enumerate(values):
+        key = same[i] if same is not None else json.dumps(v, sort_keys=True, default=str)
+        if key in seen:
+            raise OptionError(f"{where}: '{name}' lists {v!r} twice; each value may appear once")
+        seen.add(key)
 
 
 def task_id(task: dict[str, Any]) -> str:

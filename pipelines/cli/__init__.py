@@ -27,22 +27,28 @@ from typing import Any  # noqa: E402  (after the handlers: a signal while it loa
 
 
 def _interrupted(code: int) -> None:
+    """Say how a signal the command did not report ended the process (one line), and exit with `code`."""
     from pipelines.run import interrupts
 
-    when = (
-        "after the command had finished (its outputs are written)"
-        if interrupts.after_command()
-        else "before the command started"
-    )
+    phase = interrupts.signal_phase()
+    name = signal.Signals(code - 128).name if code > 128 else "SIGINT"
+    if phase == "before":
+        text = "interrupted before the command started"
+    elif phase == "after" or (phase is None and interrupts.after_command()):
+        text = f"interrupted ({name}) after the command had finished (its outputs are written)"
+    else:
+        text = f"interrupted ({name})"
     try:
-        sys.stderr.write(f"interrupted {when}\n")
+        sys.stderr.write(text + "\n")
     except (OSError, ValueError):
         pass
     sys.exit(code)
 
 
 def run() -> None:
-    """The `gslam` console script."""
+    """The `gslam` console script. Whatever ends it, a signal gives exit 128 + its number: one the command
+    reported, one outside its body (which typer would turn into a silent 130 even for SIGTERM), and one
+    while the process exits (`interrupts.exiting`)."""
     from pipelines.run import interrupts
 
     interrupts.install()
@@ -51,7 +57,16 @@ def run() -> None:
 
         run_app()
     except KeyboardInterrupt as e:  # outside a command (a command's own are handled by `errors.guarded`)
+        interrupts.exiting()
         _interrupted(interrupts.exit_code_of(e))
+    except SystemExit as e:
+        interrupts.exiting()
+        code = interrupts.unreported_exit_code(e.code)
+        if code is not None:
+            _interrupted(code)
+        raise
+    finally:
+        interrupts.exiting()
 
 
 def __getattr__(name: str) -> Any:

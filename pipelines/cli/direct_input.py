@@ -4,19 +4,28 @@ An MCAP written by `gslam ingest` is processed as it is. A log or bag that `gsla
 directory, a CARMEN `.clf`/`.log[.gz]`, a ROS 1 `.bag`, a ROS 2 bag directory, `.db3`, or an `.mcap` that
 another program wrote) is ingested first into `OUTPUT.input.mcap` beside the result, with ingest's
 defaults, so `gslam eval`, `plot` and `export` find the run's input as after an explicit ingest (as
-kiss-icp's pipeline reads a dataset directly). An earlier ingest of the same source at that path is
-reused when it is newer than the source. Anything else is refused in plain words, saying what was expected.
+kiss-icp's pipeline reads a dataset directly). The ingest records the source's resolved path and a
+fingerprint of its content (`source_fingerprint`: sizes and hashes, never modification times, which a
+copied or restored log carries from elsewhere); an earlier ingest at that path is reused only when both
+match the source now. An ingest of the same path whose content has changed is replaced; an ingest of
+another log, a file that is no ingest, and anything that is not a regular file (a FIFO would block) are
+never touched and refused in plain words, saying what was expected.
 `gslam localise MAP IN OUT` does the same for IN (into `OUT.input.mcap`); `role` names the argument in the
 messages.
 """
 
 from __future__ import annotations
 
+import hashlib
+import os
+import stat
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
+from mcaplog.tempfiles import describe_non_regular, file_kind
 from pipelines.errors import InputError
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -94,14 +103,90 @@ def _ingest_metadata(mcap: Path) -> dict | None:
     return meta if "ingest" in meta and "result" not in meta else None
 
 
-def _ingest_of(meta: dict, mcap: Path, source: Path) -> bool:
-    """An ingest whose metadata is `meta`, at `mcap`, is of `source` and newer than it (then it is used
-    again)."""
-    recorded = meta.get("dataset", {}).get("source")
-    if recorded is None or Path(str(recorded)).resolve() != source.resolve():
-        return False
-    newest = max((p.stat().st_mtime for p in ([source] if source.is_file() else source.iterdir())), default=0.0)
-    return mcap.stat().st_mtime >= newest
+WHOLE_FILE_BYTES = 32 << 20
+"""A source file up to this size is hashed whole; a larger one by its first and last `EDGE_BYTES` (with
+its size, which any change of length alters)."""
+EDGE_BYTES = 4 << 20
+MAX_FILES = 10_000
+"""A source directory's fingerprint covers at most this many of its files (sorted by path)."""
+
+
+def _file_digest(path: Path, h: Any) -> int:
+    """Feed `path`'s content (whole, or its two ends) into the hash `h`; returns its size. Reads only a
+    regular file: anything else (a FIFO would block) raises OSError."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    with os.fdopen(fd, "rb") as f:
+        st = os.fstat(f.fileno())
+        if not stat.S_ISREG(st.st_mode):
+            raise OSError(f"{path}: {file_kind(st.st_mode)}, not a regular file")
+        size = st.st_size
+        h.update(size.to_bytes(8, "little"))
+        if size <= WHOLE_FILE_BYTES:
+            while chunk := f.read(1 << 20):
+                h.update(chunk)
+        else:
+            h.update(f.read(EDGE_BYTES))
+            f.seek(size - EDGE_BYTES)
+            h.update(f.read(EDGE_BYTES))
+    return size
+
+
+def source_fingerprint(source: Path) -> dict[str, Any]:
+    """What a log's content is, to tell whether an earlier ingest is of this very content: {"size": total
+    bytes, "files": count, "sha256": over each file's relative path, size and content (whole up to 32 MiB,
+    else its first and last 4 MiB)}. A directory (a Sydney log, a ROS 2 bag) counts its regular files."""
+    h = hashlib.sha256()
+    if Path(source).is_dir():
+        files = sorted(p for p in Path(source).rglob("*") if p.is_file())[:MAX_FILES]
+        size = 0
+        for p in files:
+            h.update(str(p.relative_to(source)).encode("utf-8", "surrogateescape") + b"\0")
+            size += _file_digest(p, h)
+        return {"size": size, "files": len(files), "sha256": h.hexdigest()}
+    return {"size": _file_digest(Path(source), h), "files": 1, "sha256": h.hexdigest()}
+
+
+def _recorded_source(meta: dict) -> tuple[str | None, Path | None]:
+    """The source an ingest's metadata names, as recorded (for messages) and resolved (None: none)."""
+    dataset = meta.get("dataset", {})
+    raw = dataset.get("source_path") or dataset.get("source")
+    if not isinstance(raw, str) or not raw:
+        return None, None
+    try:
+        return raw, Path(raw).resolve()
+    except (OSError, RuntimeError):
+        return raw, None
+
+
+def _ingest_of(meta: dict, source: Path) -> str:
+    """What an ingest whose metadata is `meta` is to `source`: "this" (the same resolved path and the same
+    content fingerprint: used again), "stale" (the same path, but its content changed or was not recorded:
+    ingested again over it), or "other" (another log, or none named: never replaced)."""
+    _, recorded = _recorded_source(meta)
+    if recorded is None or recorded != source.resolve():
+        return "other"
+    fp = meta.get("dataset", {}).get("source_fingerprint")
+    if not isinstance(fp, dict):
+        return "stale"
+    try:
+        return "this" if source_fingerprint(source) == fp else "stale"
+    except OSError:
+        return "stale"
+
+
+class _WithSource:
+    """A log stream whose `dataset` metadata also records the resolved source path and its fingerprint."""
+
+    def __init__(self, log: Any, extra: dict[str, Any]) -> None:
+        self._log, self._extra = log, extra
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._log, name)
+
+    def metadata(self) -> dict[str, dict[str, Any]]:
+        meta = self._log.metadata()
+        meta.setdefault("dataset", {}).update(self._extra)
+        return meta
 
 
 def prepare(
@@ -112,21 +197,42 @@ def prepare(
     role: str = "INPUT",
 ) -> DirectInput:
     """The MCAP `process` (or `localise`) reads for `source`: itself, or `source` ingested into
-    `ingested_path(output)`. A file at that path that is not an earlier gslam ingest is never overwritten."""
+    `ingested_path(output)`. An earlier ingest of this very source there is reused; one of the same path
+    with other content is replaced; anything else there (another log's ingest, a file that is no ingest,
+    a FIFO or a device) is never overwritten nor, unless it is a regular file, opened."""
     fmt = fmt or needs_ingest(source, role)
     if fmt is None:
         return DirectInput(source)
     mcap = ingested_path(output)
-    if mcap.exists():
+    if os.path.lexists(mcap):
+        odd = describe_non_regular(mcap)  # nothing is opened before this: a FIFO would block
+        if odd is not None:
+            raise InputError(
+                f"{role} {source} is a log: it would be ingested into {mcap}, which is {odd} and is never "
+                "replaced; move it, or give another output"
+            )
         meta = _ingest_metadata(mcap)
-        if meta is not None and _ingest_of(meta, mcap, source):
-            return DirectInput(mcap, source, reused=True)
         if meta is None:  # only an earlier ingest is replaced, never another file
             raise InputError(
                 f"{role} {source} is a log: it would be ingested into {mcap}, which exists and is not an "
                 "input MCAP from gslam ingest; move that file, or run `gslam ingest` yourself"
             )
-    from ingest import ingest
+        verdict = _ingest_of(meta, source)
+        if verdict == "this":
+            return DirectInput(mcap, source, reused=True)
+        if verdict == "other":
+            from pipelines.run.recorded_input import shown
 
-    ingest(source, mcap, fmt, progress=progress)
+            named = _recorded_source(meta)[0]
+            of = f"another log, {shown(named)}" if named else "a log it does not name"
+            raise InputError(
+                f"{role} {source} is a log: it would be ingested into {mcap}, which holds the ingest of {of}; "
+                f"give another output, or move {mcap} away"
+            )
+    from ingest import open_log
+    from ingest.to_mcap import write_log_mcap
+
+    log = open_log(source, fmt)  # refuses a FIFO or a device before the fingerprint reads anything
+    recorded = {"source_path": str(source.resolve()), "source_fingerprint": source_fingerprint(source)}
+    write_log_mcap(_WithSource(log, recorded), mcap, progress)
     return DirectInput(mcap, source)

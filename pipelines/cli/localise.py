@@ -48,37 +48,43 @@ def localise(
     """Localise a log in a saved map: Monte Carlo localisation (KLD-adaptive, scan-matching proposal,
     recovery from kidnapping), with a tracking / lost state and a fitness score at every scan. IN may be a
     raw log or bag, ingested first as `gslam process` does; `gslam eval`, `plot` and `export --tum` read the
-    result."""
+    result. Ctrl-C or SIGTERM keeps the scans done: both outputs finished with them, the result marked
+    interrupted (exit 130 / 143)."""
     from gslam.localise import LocaliseConfig
-    from pipelines.localise.run import LocaliseRequest, localise
-
-    if initial_sigma is not None and initial_pose is None:
-        fail("--initial-sigma needs --initial-pose")
     from pipelines.cli.direct_input import ingested_path, needs_ingest, prepare
-    from pipelines.errors import InputError
+    from pipelines.localise.maps import map_reads
+    from pipelines.localise.run import LocaliseRequest, check_options, localise
 
+    check_options(initial_pose, initial_sigma)  # before any file is read
     rrd_path = None if no_rrd else (rrd or output.with_suffix(".rrd"))
     log_format = needs_ingest(input_mcap, "IN")  # a log or bag rather than an MCAP from gslam ingest
     outputs = {"OUT": output, **({"--rrd": rrd_path} if rrd_path is not None else {})}
     if log_format is not None:
         outputs["the ingested input"] = ingested_path(output)
-    check_outputs(outputs, {"MAP": map_path, "IN": input_mcap})
+    # What the run reads, the map's own files included (a YAML's image, the input a result names): no output
+    # may be one of them. Checked (and the map's YAML read) before the ingest, which may take a while.
+    check_outputs(outputs, {**map_reads(map_path), "IN": input_mcap})
     try:
         cfg = LocaliseConfig(seed=seed, max_particles=max_particles, global_particles=global_particles,
                              min_particles=min(100, max_particles))  # fmt: skip
     except ValueError as e:
         fail(str(e))
     if log_format is not None:
-        if not map_path.exists():  # before the ingest, which may take a while
-            raise InputError(f"{map_path}: no such map file")
         with reporting("ingest", "messages") as (report, _):
             direct = prepare(input_mcap, output, report, log_format, "IN")
         done = "using the earlier ingest" if direct.reused else "ingested it into"
         typer.echo(f"IN {input_mcap} is a {log_format} log: {done} {direct.mcap} (eval, plot and export read it)")
         input_mcap = direct.mcap
     request = LocaliseRequest(map_path, input_mcap, output, rrd_path, initial_pose, initial_sigma, cfg, skip_scans)
-    with reporting("localise", "scans") as (report, _):
-        summary = localise(request, report)
-    typer.echo(f"map {summary.map_source}")
-    typer.echo(summary.describe())
-    typer.echo(f"wrote {output}" + (f" and {rrd_path}" if rrd_path is not None else ""))
+    written = " and ".join(str(p) for p in (output, rrd_path) if p is not None)
+    summary = None
+    try:
+        with reporting("localise", "scans") as (report, _):
+            summary = localise(request, report)
+        typer.echo(f"map {summary.map_source}")
+        typer.echo(summary.describe())
+        typer.echo(f"wrote {written}")
+    except KeyboardInterrupt as e:
+        if summary is not None:  # a signal once the outputs were written
+            e.add_note(f"wrote {written}: every scan was processed before the signal")
+        raise

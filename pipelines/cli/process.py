@@ -135,6 +135,10 @@ def process(
     from pipelines.outputs.writer_child import start_rerun_writer
 
     output = _one_output(output_arg, output_opt)
+    if rrd is not None and no_rrd:
+        fail(f"--rrd {rrd} and --no-rrd contradict each other: give one")
+    if live_url is not None and not live_url.strip():
+        fail("--live-url is empty: give the Rerun viewer's address, e.g. rerun+http://127.0.0.1:9876/proxy")
     rrd_path = None if no_rrd else (rrd or output.with_suffix(".rrd"))
     # Started first, before numpy and numba are imported: see writer_child.start_rerun_writer.
     rrd_writer = None if rrd_path is None else start_rerun_writer(rrd_path)
@@ -157,7 +161,7 @@ def process(
             ("threads", threads, "--threads"),
             ("occupancy", True if occupancy else None, "--occupancy"),
         ]
-        if live or live_url:
+        if live or live_url is not None:
             from pipelines.outputs.rerun_viewer import DEFAULT_LIVE_URL
 
             run_flags.append(("live_url", live_url or DEFAULT_LIVE_URL, "--live-url"))

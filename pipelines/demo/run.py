@@ -13,6 +13,7 @@ import numpy as np
 from gslam.config import FilterConfig
 from gslam.vehicle import vehicle_preset
 from mcaplog.tempfiles import create_temporary
+from mcaplog.tempfiles import replace as replace_temporary
 from pipelines.demo.world import SimConfig, SydneyLog, distance_to_obstacles, simulate_sydney_log
 from pipelines.evaluation.evaluate import evaluate_result, read_result
 from pipelines.evaluation.plot import plot_result
@@ -42,7 +43,7 @@ def write_sydney_text(log: SydneyLog, directory: Path) -> Path:
         try:
             with os.fdopen(fd, "wb") as f:
                 np.savetxt(f, arr, fmt=fmt, delimiter=",")
-            os.replace(tmp, directory / name)
+            replace_temporary(tmp, directory / name)
         except BaseException:
             tmp.unlink(missing_ok=True)
             raise

@@ -183,6 +183,25 @@ def partial_note(meta: dict[str, Any]) -> str | None:
     return None
 
 
+RELATION_TOLERANCE_MS = 1.0
+"""How close (ms) a relation's two times must be to steps' time stamps to be scored (`relations_error`)."""
+
+
+def relations_note(given: int, matched: int, steps: int) -> str:
+    """How many of the reference's relations were scored: a relation counts only when both its times match
+    a step's sensor time stamp, so a log whose relations do not match its scans (another log's relations
+    file, times on another clock, a run cut short) would otherwise just show n/a."""
+    of = f"{given} relation{'s' if given != 1 else ''} given"
+    if matched == 0:
+        why = "the result has no steps" if steps == 0 else "no relation has both its times at scans' time stamps"
+        return (
+            f"relations: none of the {of} matched the run's scans (within {RELATION_TOLERANCE_MS:g} ms; {why}): "
+            f"relations metric not computed"
+        )
+    within = f"within {RELATION_TOLERANCE_MS:g} ms"
+    return f"relations: {matched} of the {of} matched the run's scans ({within}) and are scored"
+
+
 def evaluate_result(result: Path, reference: Path | None = None) -> dict[str, Any]:
     """All metrics, None where the data does not allow one, with `interrupted`, `steps` and `notes`
     (what the figures mean for this run: partial, no GPS). The reference (input MCAP) is found from the
@@ -216,10 +235,13 @@ def evaluate_result(result: Path, reference: Path | None = None) -> dict[str, An
         out["poles_within_1m"] = n
     if gps is None and relations is None and poles is None:
         notes.append("no ground truth in the reference (GPS, poles or relations): only speed and map size")
-    if relations is not None and len(res.t_s):
-        rel = relations_error(res.stamp_s, res.trajectory, relations)
+    if relations is not None:
+        rel = {"relations_used": 0}
+        if len(res.t_s):
+            rel = relations_error(res.stamp_s, res.trajectory, relations, RELATION_TOLERANCE_MS / 1e3)
         for k in ("relations_trans_m", "relations_trans_std_m", "relations_rot_deg"):
-            out[k] = rel[k]
+            out[k] = rel.get(k)
+        notes.append(relations_note(len(relations), rel["relations_used"], len(res.t_s)))
     r = meta["result"]
     out["ms_per_update_mean"] = r.get("ms_per_update_mean")
     out["ms_per_step_median"] = r.get("ms_per_step_filter_median")

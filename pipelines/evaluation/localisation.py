@@ -349,7 +349,8 @@ def evaluate_localisation(
     result: Path, reference: Path | None = None, progress: Callable[[int, int], None] | None = None
 ) -> dict[str, Any]:
     """The figures of a localisation result (`LOCALISATION_KEYS`, None where the data allow none), with
-    "kind": "localisation" first and "notes" last (what the figures mean for this run)."""
+    "kind": "localisation" and "interrupted" (stopped by a signal: the figures cover the scans done) first and
+    "notes" last (what the figures mean for this run)."""
     loc = read_localisation(result, progress)
     meta = loc.metadata
     summary = meta.get("result", {})
@@ -371,6 +372,14 @@ def evaluate_localisation(
     if isinstance(wall, int | float) and wall > 0 and n > 1:
         out["real_time_factor"] = float((loc.t_s[-1] - loc.t_s[0]) / wall)
     notes: list[str] = []
+    interrupted = bool(summary.get("interrupted"))
+    if interrupted:  # `gslam localise` stopped by a signal: the result holds the scans done before it
+        total = summary.get("scans_in_input")
+        of = f" of {total}" if isinstance(total, int) else ""
+        why = summary.get("error") or "a signal"
+        notes.append(
+            f"partial result: the localisation was interrupted ({why}) after {n}{of} scans; the figures cover those"
+        )
     if first is None:
         notes.append("the filter never tracked: no error is computed (lost scans are not scored)")
     ref, ref_notes = load_reference(result, meta, reference)
@@ -402,4 +411,4 @@ def evaluate_localisation(
             if not rel["relations_used"]:
                 notes.append("no relation has both its scans tracked: the relations error is not computed")
     cleaned = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in out.items()}
-    return {"kind": "localisation", **cleaned, "notes": notes}
+    return {"kind": "localisation", "interrupted": interrupted, **cleaned, "notes": notes}

@@ -10,7 +10,9 @@ import numpy as np
 
 from mcaplog.mcapio import McapInput
 from mcaplog.tempfiles import create_temporary
-from pipelines.evaluation.evaluate import read_result, reference_truth
+from mcaplog.tempfiles import replace as replace_temporary
+from pipelines.errors import InputError
+from pipelines.evaluation.evaluate import ResultData, read_result, reference_truth
 from pipelines.evaluation.metrics import interpolate_positions
 
 
@@ -35,7 +37,7 @@ def save_figure(fig, out: Path) -> Path:
         try:
             with os.fdopen(fd, "wb") as f:
                 fig.savefig(f, dpi=110, format="png")
-            os.replace(tmp, out)
+            replace_temporary(tmp, out)
         except OSError as e:  # disk full, I/O error: name the user's path
             raise OSError(e.errno, e.strerror, str(out)) from None
     finally:
@@ -54,6 +56,17 @@ def step_axis_top(step_ms: np.ndarray) -> float | None:
     return top if top > 0 and step_ms.max() > 2 * top else None
 
 
+def no_steps_line(result: Path, res: ResultData) -> str:
+    """Why a result with no steps has nothing to plot: a run interrupted (or failed) before its first scan
+    finishes its outputs with no pose, path or step time to draw."""
+    r = res.metadata.get("result", {})
+    if r.get("interrupted"):
+        why = f"the run was interrupted ({r.get('error') or 'interrupted'}) before its first scan"
+    else:
+        why = "the run processed no scan"
+    return f"{result}: no steps to plot: {why}"
+
+
 def result_figure(result: Path, reference: Path | None = None):
     """The figure of `plot_result` (a matplotlib Figure; the caller closes it)."""
     import matplotlib
@@ -62,6 +75,8 @@ def result_figure(result: Path, reference: Path | None = None):
     import matplotlib.pyplot as plt
 
     res = read_result(result)
+    if not len(res.t_s):
+        raise InputError(no_steps_line(result, res))
     gps = poles = None
     if reference is not None:
         gps, poles, _ = reference_truth(McapInput(reference))
@@ -98,7 +113,8 @@ def result_figure(result: Path, reference: Path | None = None):
         for traj, name in ((res.trajectory, "final best path"), (res.online, "online estimate")):
             inside, pos = interpolate_positions(res.t_s, traj, gps[:, 0])
             err = np.hypot(*(pos - gps[inside, 1:3]).T)
-            ax2.plot(gps[inside, 0] - t0, err, label=f"{name} (mean {err.mean():.2f} m)")
+            mean = f"mean {err.mean():.2f} m" if len(err) else "no GPS fix within the run's time span"
+            ax2.plot(gps[inside, 0] - t0, err, label=f"{name} ({mean})")
         ax2.set_xlabel("time [s]")
         ax2.set_ylabel("distance to GPS [m]")
         ax2.set_title("position error against GPS")

@@ -5,7 +5,11 @@ Result channels (docs/CHANNELS.md): /localise/pose (foxglove.PoseInFrame, map fr
 every scan), /localise/state (JSON: tracking or not, fitness, particle count, covariance, recovery),
 /localise/particles (foxglove.PosesInFrame at each update, at most 1000), /tf (map -> odom -> base_link
 -> laser), /localise/map (the map's obstacles, foxglove.PointCloud, once). Metadata "localise" (map,
-input, configuration, software version) and "result" (summary).
+input, configuration, software version) and "result" (summary: scans done and in the input, interrupted and
+by what signal, updates, tracking, time).
+
+SIGINT and SIGTERM (`pipelines.run.interrupts`, as `gslam process`): the scans done are kept, both outputs
+finished with them and the result marked interrupted; a scan is in the outputs whole or not at all.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 
@@ -28,9 +33,11 @@ from gslam.se2 import compose_inverse
 from mcaplog import channels as ch
 from mcaplog.mcapio import AtomicMcapWriter, to_ns
 from mcaplog.tempfiles import create_temporary
-from pipelines.errors import InputError
+from mcaplog.tempfiles import replace as replace_temporary
+from pipelines.errors import InputError, OptionError
 from pipelines.evaluation.localisation import MAP_TOPIC, PARTICLES_TOPIC, POSE_TOPIC, STATE_TOPIC
-from pipelines.localise.maps import SavedMap, load_map
+from pipelines.localise.maps import MAX_COORDINATE_M, SavedMap, load_map
+from pipelines.run import interrupts
 from pipelines.run.input_log import InputLog, OdomEvent, ScanEvent
 from pipelines.run.odometry_check import ReversalCheck
 from pipelines.run.recorded_input import fingerprint
@@ -172,15 +179,34 @@ class _RerunOut:
     """The recording: the map once; the particles at each update as the run goes; at the end the robot, its
     footprint, the path and the state's time series for every scan, sent as columns (a few calls for the
     whole log rather than several per scan). Written to a temporary file with `rerun_blueprint` as its
-    default layout, and moved into place at the end."""
+    default layout, and moved into place at the end (after a signal, with the scans done), or dropped."""
 
     def __init__(self, path: Path, saved: SavedMap, t0_s: float) -> None:
         import rerun as rr
 
         self.rr = rr
         self.path = path
-        fd, self.tmp = create_temporary(path)
-        os.close(fd)
+        self.tmp: Path | None = None
+        self.rec = None
+        try:
+            with interrupts.deferred():  # a signal while the temporary exists but is not yet in self.tmp waits
+                fd, self.tmp = create_temporary(path)
+                os.close(fd)
+            self._start(saved)
+        except BaseException:  # an error or a signal while it starts: no temporary left behind
+            self.abort()
+            raise
+        self.t0_s = t0_s  # the timeline "time" counts from the log's start, as `gslam process`'s
+        self.scans: list[int] = []
+        self.times_s: list[float] = []
+        self.poses: list[np.ndarray] = []
+        self.tracking: list[bool] = []
+        self.fitness: list[float] = []
+        self.particles: list[int] = []
+
+    def _start(self, saved: SavedMap) -> None:
+        """The recording stream into the temporary, with its layout and the static entities."""
+        rr = self.rr
         self.rec = rr.RecordingStream("gslam-localise")
         # Only the log's timelines (`scan`, `time`), as `gslam process`'s recording.
         self.rec.set_log_time_enabled(False)
@@ -196,13 +222,6 @@ class _RerunOut:
         rec.log(RR_PATH, rr.LineStrips2D.from_fields(colors=[[255, 215, 60]], radii=ui(1.0)), static=True)
         for name, colour in (("fitness", [90, 160, 255]), ("particles", [255, 140, 0]), ("tracking", [60, 220, 90])):
             rec.log(RR_STATS[name], rr.SeriesLines(colors=[colour], names=[name]), static=True)
-        self.t0_s = t0_s  # the timeline "time" counts from the log's start, as `gslam process`'s
-        self.scans: list[int] = []
-        self.times_s: list[float] = []
-        self.poses: list[np.ndarray] = []
-        self.tracking: list[bool] = []
-        self.fitness: list[float] = []
-        self.particles: list[int] = []
 
     def step(self, k: int, st: LocaliseStep, base: np.ndarray, particles: np.ndarray | None) -> None:
         self.scans.append(k)
@@ -217,6 +236,7 @@ class _RerunOut:
             self.rec.log(RR_PARTICLES, self.rr.Points2D(particles[:, :2]))
 
     def finish(self) -> None:
+        """Send the scans done (all of them, or those before a signal) and move the recording into place."""
         rr, rec = self.rr, self.rec
         if self.poses:
             idx = [rr.TimeColumn("scan", sequence=self.scans), rr.TimeColumn("time", duration=self.times_s)]
@@ -246,13 +266,16 @@ class _RerunOut:
                 )
         rec.flush()
         rec.disconnect()
-        os.replace(self.tmp, self.path)
+        replace_temporary(self.tmp, self.path)
 
     def abort(self) -> None:
+        """Drop the temporary (the recording at the final path, once finished, stays)."""
         try:
-            self.rec.disconnect()
+            if self.rec is not None:
+                self.rec.disconnect()
         finally:
-            Path(self.tmp).unlink(missing_ok=True)
+            if self.tmp is not None:
+                Path(self.tmp).unlink(missing_ok=True)
 
 
 def scan_stream(log: InputLog) -> Iterator[tuple[int, float, np.ndarray, np.ndarray, float]]:
@@ -272,44 +295,157 @@ def scan_stream(log: InputLog) -> Iterator[tuple[int, float, np.ndarray, np.ndar
             yield ev.index, ev.t_s, np.asarray(odom, dtype=float), ends, ev.stamp_s
 
 
+def check_options(initial_pose: tuple[float, float, float] | None, initial_sigma: tuple[float, float] | None) -> None:
+    """Refuse an initial pose or spread the filter cannot start from (not finite, a negative spread), in one
+    line naming the option: before the map is read and the first scan (a NaN pose would run the whole log
+    lost; a negative spread is a spread all the same, and reported as tracking)."""
+
+    def given(values) -> str:
+        return " ".join(f"{float(v):g}" for v in values)
+
+    if initial_pose is not None:
+        x, y, yaw = (float(v) for v in initial_pose)
+        if not all(math.isfinite(v) for v in (x, y, yaw)) or max(abs(x), abs(y)) > MAX_COORDINATE_M:
+            raise OptionError(
+                f"--initial-pose {given(initial_pose)}: X Y YAW must be finite numbers (m, m, rad), X and Y "
+                f"within {MAX_COORDINATE_M:g} m of 0"
+            )
+    if initial_sigma is not None:
+        if initial_pose is None:
+            raise OptionError("--initial-sigma needs --initial-pose")
+        sxy, syaw = (float(v) for v in initial_sigma)
+        if not (math.isfinite(sxy) and math.isfinite(syaw) and sxy >= 0 and syaw >= 0) or sxy > MAX_COORDINATE_M:
+            raise OptionError(
+                f"--initial-sigma {given(initial_sigma)}: XY and YAW are standard deviations (m, rad): finite "
+                "and not negative"
+            )
+
+
+@dataclass
+class _Scans:
+    """What the scans gave so far (the outputs hold exactly these), and how the loop over them ended."""
+
+    t_s: list[float] = dataclasses.field(default_factory=list)
+    poses: list[np.ndarray] = dataclasses.field(default_factory=list)
+    tracking: list[bool] = dataclasses.field(default_factory=list)
+    travelled: list[float] = dataclasses.field(default_factory=list)
+    filter_s: float = 0.0
+    total: int = 0
+    """The scans the input holds from `skip_scans` on."""
+    writing: bool = False
+    """A scan's messages are being written: a stop now (a second signal, which aborts) leaves them torn."""
+    torn: bool = False
+    stopped: KeyboardInterrupt | None = None
+    """The signal that stopped the scans before the end: the outputs are finished and marked interrupted."""
+    after_last_scan: KeyboardInterrupt | None = None
+    """A signal that came once every scan was done: the outputs are whole; raised after they are finished."""
+    error: BaseException | None = None
+    """An error: the outputs are dropped, the error raised."""
+
+    @property
+    def count(self) -> int:
+        return len(self.t_s)
+
+
 def localise(req: LocaliseRequest, progress: Callable[[int, int], None] | None = None) -> LocaliseSummary:
-    """Run the localisation; writes req.output (and req.rrd) atomically, nothing on failure."""
+    """Run the localisation; writes req.output (and req.rrd), each atomically. SIGINT or SIGTERM mid-run
+    (`pipelines.run.interrupts`, as `gslam process`) finishes both with the scans done, the result marked
+    interrupted, and re-raises the signal with a note saying what was written; a signal once every scan is
+    done finishes them whole, unmarked. An error (or a stop before the first scan) leaves nothing."""
+    check_options(req.initial_pose, req.initial_sigma)
     saved = load_map(req.map_path)
     log = InputLog(req.input_path)
     if log.motion_model != "odometry":
         raise InputError(f"{req.input_path}: localisation needs odometry poses (this log has {log.motion_model})")
     mount = log.mount
     laser_of = (lambda p: p) if mount is None else (lambda p: mount.laser_of(np.asarray(p)[None])[0])
-    base_of = (lambda p: p) if mount is None else mount.base_of
     initial = None if req.initial_pose is None else laser_of(np.asarray(req.initial_pose, dtype=float))
     loc = MonteCarloLocaliser(saved.field, req.config, initial, req.initial_sigma)
-    out = AtomicMcapWriter(req.output, profile="gslam-localise")
-    rrd = _RerunOut(req.rrd, saved, log.start_s) if req.rrd is not None else None
-    t_list, poses, tracking, travelled = [], [], [], []
-    odom_prev = odom_last = None
-    travel = 0.0
+    if req.rrd is not None:
+        import rerun  # noqa: F401  (its import takes a while: before any temporary exists)
+    scans = _Scans(total=max(0, log.scan_count - req.skip_scans))
+    outputs = _Outputs()
     wall0 = time.perf_counter()
-    filter_s = 0.0
-    k = 0
-    try:
-        out.add_metadata(
-            "localise",
-            {
-                "version": __version__,
-                "map": str(req.map_path),
-                "map_source": saved.source,
-                "input": str(req.input_path),
-                "input_fingerprint": fingerprint(req.input_path),
-                "initial_pose": list(req.initial_pose) if req.initial_pose is not None else None,
-                "initial_sigma": list(req.initial_sigma) if req.initial_sigma is not None else None,
-                "skip_scans": req.skip_scans,
-                "config": dataclasses.asdict(req.config),
-            },
+    _run_scans(req, log, loc, saved, outputs, scans, progress)
+    summary = _finish(req, log, loc, saved, outputs, scans, time.perf_counter() - wall0)
+    written = " and ".join(str(p) for p in (req.output, req.rrd) if p is not None)
+    if scans.after_last_scan is not None:
+        scans.after_last_scan.add_note(f"wrote {written}: every scan was processed before the signal")
+        raise scans.after_last_scan
+    if scans.stopped is not None:
+        scans.stopped.add_note(
+            f"wrote {written} with the {scans.count} of {scans.total} scans done, marked interrupted"
         )
-        first_t = log.start_s
-        cloud = ch.point_cloud(first_t, saved.points, np.ones(len(saved.points)))
-        out.write_proto(MAP, cloud, to_ns(first_t))
+        raise scans.stopped
+    return summary
+
+
+@dataclass
+class _Outputs:
+    """The result MCAP and the recording, each None until it is open on its temporary."""
+
+    out: AtomicMcapWriter | None = None
+    rrd: _RerunOut | None = None
+
+    def abort(self) -> None:
+        """Drop both temporaries (an output already moved into place stays)."""
+        try:
+            if self.out is not None:
+                self.out.abort()
+        finally:
+            if self.rrd is not None:
+                self.rrd.abort()
+
+
+def _open_outputs(req: LocaliseRequest, saved: SavedMap, log: InputLog, outputs: _Outputs) -> None:
+    """Open the result MCAP (its "localise" metadata and the map written) and the recording in `outputs`,
+    each set there as soon as its temporary exists, so that whatever stops the run can drop it."""
+    with interrupts.deferred():  # a signal while its temporary exists but is not yet in `outputs` waits
+        outputs.out = out = AtomicMcapWriter(req.output, profile="gslam-localise")
+    if req.rrd is not None:
+        outputs.rrd = _RerunOut(req.rrd, saved, log.start_s)
+    out.add_metadata(
+        "localise",
+        {
+            "version": __version__,
+            "map": str(req.map_path),
+            "map_source": saved.source,
+            "input": str(req.input_path),
+            "input_fingerprint": fingerprint(req.input_path),
+            "initial_pose": list(req.initial_pose) if req.initial_pose is not None else None,
+            "initial_sigma": list(req.initial_sigma) if req.initial_sigma is not None else None,
+            "skip_scans": req.skip_scans,
+            "config": dataclasses.asdict(req.config),
+        },
+    )
+    first_t = log.start_s
+    cloud = ch.point_cloud(first_t, saved.points, np.ones(len(saved.points)))
+    out.write_proto(MAP, cloud, to_ns(first_t))
+
+
+def _run_scans(
+    req: LocaliseRequest,
+    log: InputLog,
+    loc: MonteCarloLocaliser,
+    saved: SavedMap,
+    outputs: _Outputs,
+    scans: _Scans,
+    progress: Callable[[int, int], None] | None,
+) -> None:
+    """Open the outputs, then every scan through the filter and into them, kept in `scans`. A signal or an
+    error ends the loop and is kept there (not raised), so that the outputs are finished (or dropped) with the
+    scans done. Each scan's messages are written as one: a signal meanwhile waits for them
+    (`interrupts.deferred`)."""
+    mount = log.mount
+    base_of = (lambda p: p) if mount is None else mount.base_of
+    odom_prev = None
+    travel = 0.0
+    done = False
+    try:
+        _open_outputs(req, saved, log, outputs)
+        out, rrd = outputs.out, outputs.rrd
         for index, t_s, odom_last, ends, stamp_s in scan_stream(log):
+            interrupts.check()  # a signal whose exception was swallowed on its way (e.g. in a compiled kernel)
             if index < req.skip_scans:
                 odom_prev = odom_last
                 continue
@@ -326,62 +462,132 @@ def localise(req: LocaliseRequest, progress: Callable[[int, int], None] | None =
             odom_prev = odom_last
             st = loc.step(t_s, ends)
             step_ms = (time.perf_counter() - t0) * 1e3
-            filter_s += step_ms / 1e3
             base = np.asarray(base_of(st.pose[None])[0] if mount is not None else st.pose)
-            _write_step(out, t_s, stamp_s, st, base, odom_last, mount, step_ms)
             particles = None
             if st.updated:
                 thin = loc.poses[:: max(1, len(loc.poses) // MAX_PARTICLES_WRITTEN)]
                 particles = np.asarray(base_of(thin) if mount is not None else thin)
-                out.write_proto_bytes(PARTICLES, ch.PosesInFrame, ch.poses_in_frame_bytes(stamp_s, particles,
-                                      ch.MAP_FRAME), to_ns(t_s))  # fmt: skip
-            if rrd is not None:
-                rrd.step(k, st, base, particles)
-            t_list.append(t_s)
-            poses.append(base)
-            tracking.append(st.tracking)
-            travelled.append(travel)
-            k += 1
+            scans.writing = True
+            with interrupts.deferred():  # the scan's pose, state, transforms and particles, and its count: all or none
+                _write_step(out, t_s, stamp_s, st, base, odom_last, mount, step_ms)
+                if particles is not None:
+                    out.write_proto_bytes(PARTICLES, ch.PosesInFrame, ch.poses_in_frame_bytes(stamp_s, particles,
+                                          ch.MAP_FRAME), to_ns(t_s))  # fmt: skip
+                if rrd is not None:
+                    rrd.step(scans.count, st, base, particles)
+                scans.t_s.append(t_s)
+                scans.poses.append(base)
+                scans.tracking.append(st.tracking)
+                scans.travelled.append(travel)
+                scans.filter_s += step_ms / 1e3
+                scans.writing = False
             if progress is not None:
-                progress(k, log.scan_count - req.skip_scans)
-        if k == 0:
-            raise InputError(f"{req.input_path}: no scans to localise (the input has {log.scan_count})")
-        wall = time.perf_counter() - wall0
-        track = np.array(tracking)
-        summary = LocaliseSummary(
-            scans=k,
-            updates=loc.updates,
-            tracked_share=float(track.mean()),
-            converged_at_m=_converged_at(track, np.array(travelled)),
-            wall_s=wall,
-            log_duration_s=float(t_list[-1] - t_list[0]),
-            ms_per_scan=1e3 * filter_s / k,
-            trajectory=np.array(poses),
-            t_s=np.array(t_list),
-            tracking=track,
-            travelled_m=np.array(travelled),
-            map_source=saved.source,
-        )
-        out.add_metadata(
-            "result",
-            {
-                "scans": k,
-                "updates": loc.updates,
-                "tracked_share": summary.tracked_share,
-                "converged_at_m": summary.converged_at_m,
-                "wall_s": wall,
-                "ms_per_scan": summary.ms_per_scan,
-            },
-        )
-        out.finish()
-        if rrd is not None:
-            rrd.finish()
-        return summary
-    except BaseException:
-        out.abort()
-        if rrd is not None:
-            rrd.abort()
+                progress(scans.count, scans.total)
+        done = True
+        interrupts.check()  # a signal swallowed in the last scan
+        interrupts.hold()  # from here a signal waits for the outputs (one before it is caught below)
+    except (KeyboardInterrupt, Exception) as e:  # SIGINT, SIGTERM (interrupts.Stopped) or an error
+        interrupts.hold()
+        interrupts.acknowledge()
+        signum = interrupts.received()
+        if not isinstance(e, KeyboardInterrupt) and signum is not None:
+            e = interrupts.Stopped(signum)  # raised inside a compiled kernel's call, it came back as a SystemError
+        if not isinstance(e, KeyboardInterrupt):
+            scans.error = e
+        elif scans.writing:  # a second signal that aborts: the scan's messages may be torn
+            scans.torn = True
+            scans.stopped = e
+        elif done or scans.count >= scans.total > 0:
+            scans.after_last_scan = e
+        else:
+            scans.stopped = e
+
+
+def _finish(
+    req: LocaliseRequest,
+    log: InputLog,
+    loc: MonteCarloLocaliser,
+    saved: SavedMap,
+    outputs: _Outputs,
+    scans: _Scans,
+    wall: float,
+) -> LocaliseSummary:
+    """Finish both outputs with the scans done (a signal meanwhile waits for them; a second one within
+    `interrupts.ABORT_WITHIN_S` aborts them), or drop them (`_drop`). An output that cannot be finished is
+    dropped, the other kept, and its error raised."""
+    if scans.error is not None or scans.torn or scans.count == 0:
+        _drop(req, log, outputs, scans)
+    errors: list[Exception] = []
+    finished = False
+    try:
+        with interrupts.deferred():
+            k = scans.count
+            track = np.array(scans.tracking)
+            summary = LocaliseSummary(
+                scans=k,
+                updates=loc.updates,
+                tracked_share=float(track.mean()),
+                converged_at_m=_converged_at(track, np.array(scans.travelled)),
+                wall_s=wall,
+                log_duration_s=float(scans.t_s[-1] - scans.t_s[0]),
+                ms_per_scan=1e3 * scans.filter_s / k,
+                trajectory=np.array(scans.poses),
+                t_s=np.array(scans.t_s),
+                tracking=track,
+                travelled_m=np.array(scans.travelled),
+                map_source=saved.source,
+            )
+            outputs.out.add_metadata(
+                "result",
+                {
+                    "scans": k,
+                    "scans_in_input": scans.total,
+                    "interrupted": scans.stopped is not None,
+                    "error": None if scans.stopped is None else repr(scans.stopped),
+                    "updates": loc.updates,
+                    "tracked_share": summary.tracked_share,
+                    "converged_at_m": summary.converged_at_m,
+                    "wall_s": wall,
+                    "ms_per_scan": summary.ms_per_scan,
+                },
+            )
+            for w in (outputs.out, outputs.rrd):
+                if w is None:
+                    continue
+                try:
+                    w.finish()
+                except Exception as e:  # this output is lost, not the other: finish it, then say so
+                    w.abort()
+                    errors.append(e)
+            finished = True
+    except KeyboardInterrupt as stop:
+        if finished and scans.stopped is None and not errors:  # the signal waited for the finish
+            written = " and ".join(str(p) for p in (req.output, req.rrd) if p is not None)
+            stop.add_note(f"wrote {written}: every scan was processed before the signal")
+        else:  # a second signal: abort
+            outputs.abort()
         raise
+    except BaseException:
+        outputs.abort()
+        raise
+    if errors:
+        raise errors[0]
+    return summary
+
+
+def _drop(req: LocaliseRequest, log: InputLog, outputs: _Outputs, scans: _Scans) -> NoReturn:
+    """Drop both outputs and raise why: the error that stopped the scans; a signal before the first scan,
+    or one that tore a scan's messages (a second signal, which aborts); no scan in the input."""
+    with interrupts.deferred():
+        outputs.abort()
+    if scans.error is not None:
+        raise scans.error
+    stop = scans.stopped or scans.after_last_scan
+    if stop is not None:
+        why = "in the middle of writing a scan" if scans.torn else "before the first scan"
+        stop.add_note(f"stopped {why}: nothing written")
+        raise stop
+    raise InputError(f"{req.input_path}: no scans to localise (the input has {log.scan_count})")
 
 
 def _converged_at(tracking: np.ndarray, travelled: np.ndarray) -> float | None:

@@ -1,6 +1,8 @@
 """Check a command's output paths before any work: none may be (or lie inside) one of its inputs, be
-a directory, repeat another output, or sit where nothing can be written. Each refusal is one line
-naming the option and the path (and the input it would destroy)."""
+anything but a regular file when it exists (a directory, a device, a FIFO, a socket or a symlink: every
+output is a temporary renamed into place, which would put a regular file where `/dev/null` was),
+repeat another output, or sit where nothing can be written. Each refusal is one line naming the option
+and the path (and the input it would destroy)."""
 
 from __future__ import annotations
 
@@ -8,7 +10,7 @@ import errno
 import os
 from pathlib import Path
 
-from mcaplog.tempfiles import create_temporary
+from mcaplog.tempfiles import create_temporary, describe_non_regular
 from pipelines.errors import OutputError
 
 Labelled = dict[str, Path | None]
@@ -59,6 +61,18 @@ def _resolvable(label: str, path: Path) -> None:
         raise OutputError(f"{label} {path}: cannot be resolved ({why}); give another path") from None
 
 
+def _regular_or_absent(label: str, path: Path) -> None:
+    """Refuse an output path that exists and is not a regular file, without opening it: a directory, a
+    device (`/dev/null`), a FIFO, a socket or a symlink (`/dev/stdout` is one, to `/proc/self/fd/1`) is
+    never replaced (the rename of the output's temporary would put a regular file in its place)."""
+    what = describe_non_regular(path)
+    if what is None:
+        return
+    if what == "a directory":
+        raise OutputError(f"{label} {path} is a directory; give the path of a file to write")
+    raise OutputError(f"{label} {path} is {what}: an output replaces only a regular file; give the path of one")
+
+
 def check_outputs(outputs: Labelled, inputs: Labelled) -> None:
     """`outputs` and `inputs` map a label as the user typed it (`-o`, `--rrd`, `INPUT`) to a path
     (None: not given). Raises OutputError for the first output that cannot be written safely."""
@@ -84,7 +98,6 @@ def check_outputs(outputs: Labelled, inputs: Labelled) -> None:
         for other_label, other in seen.items():
             if _same(out, other):
                 raise OutputError(f"{label} {out} is the same file as {other_label} {other}; give each output its own")
-        if out.is_dir():
-            raise OutputError(f"{label} {out} is a directory; give the path of a file to write")
+        _regular_or_absent(label, out)  # compared with the inputs first: "is the input" says more
         _writable_dir(label, out)
         seen[label] = out

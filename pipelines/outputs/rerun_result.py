@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
@@ -11,6 +10,7 @@ import numpy as np
 
 from gslam.filter import SlamFilter
 from gslam.scan import ScanGeometry, inverse_measure
+from mcaplog.tempfiles import replace as replace_temporary
 from mcaplog.tempfiles import temporary_for
 from pipelines.outputs import rerun_entities as entity
 from pipelines.outputs.writer import RunEnd, RunStart
@@ -167,7 +167,7 @@ class RerunResultWriter:
                 prob, _, _ = flt.occupancy(best)
                 final["occupancy_image"] = (255 * (1 - prob.T[::-1])).astype(np.uint8)
         self.writer.finish(("finish", final))
-        os.replace(self.tmp, self.path)
+        replace_temporary(self.tmp, self.path)
         self.finished = True
         end.result["peak_rss_mb_rrd_writer"] = self.writer.peak_rss_mb
         end.result["cpu_s_rrd_writer"] = self.writer.cpu_s

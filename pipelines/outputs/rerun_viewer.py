@@ -1,4 +1,9 @@
-"""Where a user looks at a recording: the command that opens one here, and the viewer `--live` streams to."""
+"""Where a user looks at a recording: the command that opens one here, and the viewer `--live` streams to.
+
+A `--live-url` is parsed here (`parse_live_url`), not by urllib, so that a bad port or an IPv6 address
+without brackets is said in gslam's words, and the endpoint is asked before the run whether it is a gRPC
+server, as a Rerun viewer is (`probe_endpoint`): a web server, another HTTP/2 service or a port that never
+answers is refused in one line instead of stalling the recording's writer for a minute."""
 
 from __future__ import annotations
 
@@ -12,6 +17,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from pipelines.run.live_url import LiveAddress, parse_live_url
+
 
 def has_screen() -> bool:
     """A native viewer can open a window here."""
@@ -24,13 +31,15 @@ def rerun_binary() -> str:
 
 
 def wait_for_port(host: str, port: int, timeout_s: float) -> bool:
-    """Whether something listens at host:port within `timeout_s` (tried every 0.2 s)."""
+    """Whether something listens at host:port (an IPv4 or IPv6 address, or a name) within `timeout_s`
+    (tried every 0.2 s)."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        with socket.socket() as s:
-            if s.connect_ex((host, port)) == 0:
+        try:
+            with socket.create_connection((host, port), timeout=1.0):
                 return True
-        time.sleep(0.2)
+        except OSError:
+            time.sleep(0.2)
     return False
 
 
@@ -46,6 +55,116 @@ def open_command(rrd: Path) -> str:
 
 DEFAULT_LIVE_URL = "rerun+http://127.0.0.1:9876/proxy"
 """Where `gslam process --live` streams by default: the port a Rerun viewer listens on."""
+
+
+PROBE_TIMEOUT_S = 3.0
+"""How long an endpoint that accepts the connection is given to answer the probe's gRPC request."""
+
+_PROBE_PATH = b"/gslam.LiveProbe/Probe"
+"""The gRPC method the probe asks for: none serves it, and a gRPC server answers an unknown method with
+HTTP status 200 and grpc-status UNIMPLEMENTED, where another HTTP/2 server says 404."""
+_H2_STATUS = {0x88: 200, 0x89: 204, 0x8A: 206, 0x8B: 304, 0x8C: 400, 0x8D: 404, 0x8E: 500}
+"""HPACK's static table: the one byte that encodes `:status` for the common codes."""
+
+
+def _h2_request(address: LiveAddress) -> bytes:
+    """An HTTP/2 client's connection preface, an empty SETTINGS frame and a gRPC request (HEADERS, ending
+    the stream) for `_PROBE_PATH`, its header block in plain HPACK (literals, no Huffman coding)."""
+
+    def text(b: bytes) -> bytes:
+        return bytes([len(b)]) + b  # a string under 127 bytes, not Huffman-coded
+
+    host = f"[{address.host}]" if ":" in address.host else address.host
+    authority = f"{host}:{address.port}".encode("ascii", "replace")[:120]
+    block = (
+        b"\x83"  # :method POST
+        + (b"\x87" if address.tls else b"\x86")  # :scheme https / http
+        + b"\x04" + text(_PROBE_PATH)  # :path
+        + b"\x01" + text(authority)  # :authority
+        + b"\x0f\x10" + text(b"application/grpc")  # content-type (static entry 31)
+        + b"\x00" + text(b"te") + text(b"trailers")
+    )  # fmt: skip
+    headers = len(block).to_bytes(3, "big") + b"\x01\x05" + (1).to_bytes(4, "big")  # END_STREAM | END_HEADERS
+    return b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + b"\x00\x00\x00\x04\x00\x00\x00\x00\x00" + headers + block
+
+
+def _verdict(frames: list[tuple[int, int, int, bytes]]) -> str | None:
+    """What the server's HTTP/2 frames (type, flags, stream, payload) say of it as a gRPC server: None when
+    it answered the request with status 200 (or in a form not decoded here), else what it did."""
+    for kind, flags, stream, payload in frames:
+        if kind == 0x7:  # GOAWAY
+            return "speaks HTTP/2 but ends the connection at a gRPC request"
+        if kind == 0x3 and stream == 1:  # RST_STREAM
+            return "speaks HTTP/2 but refuses a gRPC request"
+        if kind == 0x1 and stream == 1:  # HEADERS: the response's status comes first
+            at = (1 if flags & 0x8 else 0) + (5 if flags & 0x20 else 0)  # PADDED, PRIORITY
+            status = _H2_STATUS.get(payload[at] if len(payload) > at else -1)
+            if status is None or status == 200:
+                return None
+            return f"speaks HTTP/2 but answers a gRPC request with HTTP status {status}, as no gRPC server does"
+    return "speaks HTTP/2 but does not answer a gRPC request"
+
+
+def probe_endpoint(conn: socket.socket, address: LiveAddress, timeout_s: float = PROBE_TIMEOUT_S) -> str | None:
+    """Ask the endpoint at the other end of `conn` (connected) whether it is a gRPC server, as a Rerun
+    viewer's is: an HTTP/2 request for a method no one serves, which a gRPC server answers with status 200
+    (and grpc-status UNIMPLEMENTED). None when it does, else what it did instead ("answers plain HTTP
+    (HTTP/1.0 400 ...)", "does not answer within 3 s", ...). The caller owns and closes `conn`."""
+    sock = conn
+    frames: list[tuple[int, int, int, bytes]] = []
+    reply = b""
+    deadline = time.monotonic() + timeout_s
+    try:
+        conn.settimeout(timeout_s)
+        if address.tls:
+            import ssl
+
+            context = ssl.create_default_context()
+            context.set_alpn_protocols(["h2"])
+            sock = context.wrap_socket(conn, server_hostname=address.host)
+        sock.sendall(_h2_request(address))
+        buffer = b""
+        while not any(f[0] in (0x1, 0x3, 0x7) for f in frames):
+            left = deadline - time.monotonic()
+            if left <= 0:
+                break
+            sock.settimeout(left)
+            chunk = sock.recv(4096)
+            if not chunk:
+                break
+            reply = (reply + chunk)[:256]
+            buffer += chunk
+            if not frames and len(buffer) >= 9 and buffer[3] != 0x4:  # an HTTP/2 server begins with SETTINGS
+                break
+            while len(buffer) >= 9 and len(buffer) >= 9 + int.from_bytes(buffer[:3], "big"):
+                n = int.from_bytes(buffer[:3], "big")
+                frames.append(
+                    (buffer[3], buffer[4], int.from_bytes(buffer[5:9], "big") & 0x7FFFFFFF, buffer[9 : 9 + n])
+                )
+                buffer = buffer[9 + n :]
+    except TimeoutError:
+        pass
+    except OSError as e:  # ssl.SSLError is one
+        reason = getattr(e, "reason", None) or e.strerror or type(e).__name__
+        return f"fails the {'TLS handshake' if address.tls else 'HTTP/2 greeting'} ({reason})"
+    if frames and frames[0][0] == 0x4:
+        return _verdict(frames)
+    if reply.startswith(b"HTTP/"):
+        first = reply.split(b"\r\n", 1)[0].decode("ascii", "replace")
+        return f"answers plain HTTP ({shown_bytes(first)}), not the HTTP/2 of a Rerun viewer's gRPC server"
+    if reply:
+        return (
+            f"answers {shown_bytes(reply.decode('utf-8', 'replace'))!r}, not the HTTP/2 of a Rerun viewer's gRPC server"
+        )
+    if time.monotonic() >= deadline:
+        return f"accepts the connection but does not answer within {timeout_s:g} s"
+    return "closes the connection without answering"
+
+
+def shown_bytes(text: str, limit: int = 40) -> str:
+    """The start of what an endpoint answered, as a message may quote it: printable characters only."""
+    text = " ".join("".join(c if c.isprintable() else " " for c in text[: 4 * limit]).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 STOP_TIMEOUT_S = 10.0
@@ -142,22 +261,38 @@ def wait_port_free(port: int, timeout_s: float) -> bool:
 
 
 def live_viewer(url: str = DEFAULT_LIVE_URL) -> LiveViewer:
-    """Make sure a viewer listens at `url` for `--live`: one that does is used as it is (and left alone);
-    when nothing does (and `url` is on this machine), one is started (the native viewer where there is a
-    screen, else `rerun --serve-web`, the web viewer), for `LiveViewer.end` to stop after the run."""
-    from urllib.parse import urlparse
+    """Make sure a viewer listens at `url` for `--live`, before the run: one that does (and answers a gRPC
+    request as a gRPC server does, `probe_endpoint`) is used as it is (and left alone); when nothing does (and `url` is
+    on this machine), one is started (the native viewer where there is a screen, else `rerun --serve-web`,
+    the web viewer), for `LiveViewer.end` to stop after the run. A malformed `url`, or an endpoint that
+    answers something else or never answers, is an OptionError naming --live-url and what answered."""
+    from pipelines.errors import OptionError
 
-    where = urlparse(url.replace("rerun+", "", 1).replace("rerun://", "http://", 1))
-    host, port = where.hostname or "127.0.0.1", where.port or 9876
-    with socket.socket() as s:
-        s.settimeout(1.0)
-        if s.connect_ex((host, port)) == 0:
-            return LiveViewer(url, f"streaming live to the Rerun viewer at {url}")
+    try:
+        address = parse_live_url(url)
+    except ValueError as e:
+        raise OptionError(f"--live-url {url[:100]}: {e}") from None
+    host, port = address.host, address.port
+    try:
+        conn = socket.create_connection((host, port), timeout=1.0)
+    except OSError:
+        conn = None
+    if conn is not None:
+        with conn:
+            wrong = probe_endpoint(conn, address)
+        if wrong is not None:
+            raise OptionError(
+                f"--live-url {url}: the endpoint at {host}:{port} {wrong}; give the gRPC address of a Rerun "
+                f"viewer (start one with: rerun --port {port})"
+            )
+        return LiveViewer(url, f"streaming live to the Rerun viewer at {url}")
     if host not in ("127.0.0.1", "localhost", "::1"):
-        raise ValueError(f"--live-url {url}: no Rerun viewer answers at {host}:{port}")
+        raise OptionError(f"--live-url {url}: no Rerun viewer answers at {host}:{port}")
     screen = has_screen()
     web = 9090 if port_free(9090) else free_port()
     args = [rerun_binary(), "--port", str(port)]
+    if host == "::1":  # the viewer listens on IPv4 by default
+        args += ["--bind", "::1"]
     if not screen:
         args += ["--serve-web", "--web-viewer", "--web-viewer-port", str(web)]
     process = start_viewer(args)

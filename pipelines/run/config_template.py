@@ -13,9 +13,12 @@ import ast
 import inspect
 import json
 import math
+import os
 import re
+import stat
 import textwrap
 from dataclasses import fields
+from pathlib import Path
 from typing import Any
 
 from gslam import __version__
@@ -78,6 +81,28 @@ def _lines(obj: Any, docs: dict[str, str], skip: tuple[str, ...] = ()) -> list[s
             out.append(f"{f.name} = {toml_value(value)}")
         out.append("")
     return out
+
+
+TEMPLATE_FIRST_LINE = re.compile(rb"# gslam [^\s:]+: every option of `gslam process`")
+"""The first line of every template `config_toml` wrote (any version): how `gslam config --dump -o FILE`
+knows an existing FILE is one it wrote, the only kind it replaces."""
+
+
+def is_template(path: Path) -> bool:
+    """Whether `path` is a regular file whose first line is a template's (`TEMPLATE_FIRST_LINE`). Reads
+    at most its first 200 bytes, and nothing of anything but a regular file (a FIFO would block)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except OSError:
+        return False
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return False
+        return TEMPLATE_FIRST_LINE.match(os.read(fd, 200)) is not None
+    except OSError:
+        return False
+    finally:
+        os.close(fd)
 
 
 def config_toml() -> str:

@@ -3,7 +3,9 @@ finished with the steps done and marked interrupted, and the exit code is 128 + 
 (130, 143). Standard library only: installed before anything heavy is imported (`install`).
 
 - Before a command runs (imports, option parsing) a signal ends the process with its exit code and
-  one line, never a traceback (`install`, `received`).
+  one line, never a traceback (`install`, `received`). typer turns a `Stopped` raised outside the
+  command's body into a silent exit 130 whatever the signal; the command line puts 128 + its number back
+  (`unreported_exit_code`), and a signal while the process exits ends it at once with that code (`exiting`).
 - While a command runs (`stop_on_signals`), the first signal raises `Stopped` in the main thread. If
   that exception is swallowed on its way (Python drops exceptions raised inside some callbacks, e.g.
   during an import or a finaliser), the run's loop finds the signal with `check` and raises it there.
@@ -17,6 +19,7 @@ finished with the steps done and marked interrupted, and the exit code is 128 + 
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import threading
@@ -62,6 +65,10 @@ class _State:
     """`hold` has started the deferral of the `deferred` block that follows."""
     command_done = False
     """The command has returned (`command_finished`): a signal now finds its work complete."""
+    command_started = False
+    """The command's body has begun (`stop_on_signals` entered): a signal from now is reported by it."""
+    phase: str | None = None
+    """Where `Stopped` was last raised: "before", "during" or "after" the command's body (`_stop`)."""
 
 
 _state = _State()
@@ -81,6 +88,14 @@ def _note(text: str) -> None:
         pass
 
 
+def _stop(signum: int) -> Stopped:
+    """The `Stopped` to raise for `signum`, noting where it is raised: before the command's body began,
+    during it (the command reports it, with its exit code) or after it returned."""
+    st = _state
+    st.phase = "after" if st.command_done else "during" if st.command_started else "before"
+    return Stopped(signum)
+
+
 def _handler(signum: int, frame) -> None:
     st = _state
     if st.deferring:
@@ -89,7 +104,7 @@ def _handler(signum: int, frame) -> None:
             st.deferring = 0  # abort the finish
             st.signum = signum
             st.raised = True
-            raise Stopped(signum)
+            raise _stop(signum)
         st.deferred_at = now
         st.signum = st.signum or signum
         name = signal.Signals(signum).name
@@ -100,7 +115,7 @@ def _handler(signum: int, frame) -> None:
         return
     st.signum = signum
     st.raised = True
-    raise Stopped(signum)
+    raise _stop(signum)
 
 
 def _unraisable(unraisable) -> None:
@@ -129,7 +144,7 @@ def check() -> None:
     st = _state
     if st.signum is not None and not st.deferring:
         st.raised = True
-        raise Stopped(st.signum)
+        raise _stop(st.signum)
 
 
 def acknowledge() -> None:
@@ -146,6 +161,7 @@ def stop_on_signals() -> Iterator[None]:
         yield
         return
     previous = {s: signal.signal(s, _handler) for s in _SIGNALS}
+    _state.command_started = True
     try:
         yield
     except KeyboardInterrupt:
@@ -167,6 +183,31 @@ def hold() -> None:
         st.deferring += 1
 
 
+class WholeStep:
+    """Within the block (one step written to every output and counted) a signal waits, and is raised as
+    `Stopped` when the block ends: a step is in the outputs whole, and counted, or not at all, so an
+    interrupted result holds exactly the steps its message says. A second signal within
+    `ABORT_WITHIN_S` raises at once, as in `deferred`. A class rather than a generator: it runs at every
+    scan."""
+
+    __slots__ = ()
+
+    def __enter__(self) -> None:
+        _state.deferring += 1
+
+    def __exit__(self, kind, value, traceback) -> None:
+        st = _state
+        st.deferring = max(0, st.deferring - 1)
+        if kind is None and st.signum is not None and not st.raised and not st.deferring:
+            st.deferred_at = None
+            st.raised = True
+            raise _stop(st.signum)
+
+
+whole_step = WholeStep()
+"""`with interrupts.whole_step:` around the writing and counting of one step."""
+
+
 @contextmanager
 def deferred() -> Iterator[None]:
     """Within the block (the outputs being finished) a signal waits: noted, then raised as `Stopped` once
@@ -185,7 +226,7 @@ def deferred() -> Iterator[None]:
         st.deferred_at = None
     if st.signum is not None and not st.raised:
         st.raised = st.delivered = True
-        raise Stopped(st.signum)
+        raise _stop(st.signum)
 
 
 def command_finished() -> None:
@@ -196,6 +237,47 @@ def command_finished() -> None:
 def after_command() -> bool:
     """The command had returned when the signal came."""
     return _state.command_done
+
+
+def signal_phase() -> str | None:
+    """Where the signal's `Stopped` was raised: "before" the command's body began (while the command line
+    loads or parses its options), "during" it, or "after" it returned; None when no signal came or its
+    exception was lost on its way before anything raised it again (`_unraisable`)."""
+    return None if _state.signum is None else _state.phase
+
+
+def unreported_exit_code(code: object) -> int | None:
+    """The exit code (128 + the signal's number) for a process about to exit with `code` after a signal
+    the command did not report: one raised outside the command's body (before it began or after it
+    returned), which typer turns into a silent exit 130 whatever the signal (so a SIGTERM while `gslam`
+    loaded ended 130, not 143), or one whose exception was lost and the command ended otherwise. None when
+    no signal came, or the command reported it (then `code` is already 128 + its number)."""
+    st = _state
+    if st.signum is None or (st.phase == "during" and code == 128 + st.signum):
+        return None
+    return 128 + st.signum
+
+
+def _exit_now(signum: int, frame) -> None:
+    """A signal while the process exits (the command has ended, its outputs written or removed, its exit
+    decided): nothing is left to finish, so it ends the process at once, with 128 + its number."""
+    _note(f"interrupted ({signal.Signals(signum).name}) while gslam exited (the command had ended)")
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError, AttributeError):
+            pass
+    os._exit(128 + signum)
+
+
+def exiting() -> None:
+    """The command line is on its way out (its exit code is decided): a first signal from now ends the
+    process at once with 128 + its number (`_exit_now`) instead of raising into the interpreter's teardown,
+    where it would print "Exception ignored" or a traceback; after an earlier signal, later ones are
+    ignored (the exit code stays the first one's)."""
+    if threading.current_thread() is threading.main_thread():
+        for s in _SIGNALS:
+            signal.signal(s, _exit_now if _state.signum is None else signal.SIG_IGN)
 
 
 def reset() -> None:
