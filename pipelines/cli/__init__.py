@@ -42,7 +42,7 @@ def _interrupted(code: int) -> None:
         sys.stderr.write(text + "\n")
     except (OSError, ValueError):
         pass
-    sys.exit(code)
+    interrupts.end_now(code)
 
 
 def run() -> None:
@@ -64,6 +64,8 @@ def run() -> None:
         code = interrupts.unreported_exit_code(e.code)
         if code is not None:
             _interrupted(code)
+        if interrupts.received() is not None and isinstance(e.code, int):
+            interrupts.end_now(e.code)  # the command reported the signal; skip the teardown (`end_now`)
         raise
     finally:
         interrupts.exiting()

@@ -270,6 +270,21 @@ def _exit_now(signum: int, frame) -> None:
     os._exit(128 + signum)
 
 
+def end_now(code: int) -> None:
+    """End a process that a signal stopped, once its command has finished or removed its outputs and said
+    so: flush the standard streams and exit with `code` without the interpreter's teardown. A signal can
+    land inside an import or a compile (numba's LLVM, a C extension half initialised); tearing such a
+    process down has crashed it (a segmentation fault after the one-line message, about one run in a few
+    dozen), turning exit 130 into -11. Nothing is left to do at that point: the writers have finished or
+    dropped their files and the child writers have ended."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError, AttributeError):
+            pass
+    os._exit(code)
+
+
 def exiting() -> None:
     """The command line is on its way out (its exit code is decided): a first signal from now ends the
     process at once with 128 + its number (`_exit_now`) instead of raising into the interpreter's teardown,
