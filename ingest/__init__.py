@@ -13,6 +13,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from mcaplog.tempfiles import file_kind
+
 from .base import LogReader, LogStream, ReadOptions
 from .carmen import CarmenReader
 from .logdata import LogData, ScanGeometry
@@ -60,8 +62,7 @@ def _require_file_or_directory(source: Path) -> None:
     """A log is a regular file or a directory: a FIFO or a device (`/dev/zero`) would block or never end."""
     mode = source.stat().st_mode
     if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
-        kind = "a FIFO" if stat.S_ISFIFO(mode) else "a device or socket"
-        raise IngestError(f"{source}: {kind}, not a log file or directory")
+        raise IngestError(f"{source}: {file_kind(mode)}, not a log file or directory")
 
 
 def _reader_for(fmt: str) -> LogReader:

@@ -26,7 +26,7 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap_protobuf.decoder import DecoderFactory
 from mcap_protobuf.schema import register_schema
 
-from .tempfiles import create_temporary
+from .tempfiles import create_temporary, file_kind
 from .tempfiles import replace as replace_temporary
 from .writer import McapWriter
 
@@ -297,8 +297,7 @@ def require_regular_file(path: Path, what: str) -> None:
     except OSError:
         return  # reported by whoever opens it
     if not stat.S_ISREG(mode):
-        kind = "a directory" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else "a device or socket"
-        raise ValueError(f"{path}: {kind}, not a regular file; give {what}")
+        raise ValueError(f"{path}: {file_kind(mode)}, not a regular file; give {what}")
 
 
 def _sequential_chunks(summary: Any, channel_ids: set[int] | None) -> list[Any] | None:

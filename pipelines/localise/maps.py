@@ -21,6 +21,7 @@ from typing import BinaryIO
 import numpy as np
 
 from gslam.localise.field import MAX_FIELD_CELLS, LikelihoodField, check_field_size
+from mcaplog.tempfiles import file_kind
 from pipelines.errors import InputError
 from pipelines.run.recorded_input import shown
 
@@ -47,19 +48,6 @@ class SavedMap:
     """What the map was built from, for the user and the result's metadata."""
 
 
-def _kind(mode: int) -> str:
-    """What a file that is not a regular file is, for the messages."""
-    if stat.S_ISDIR(mode):
-        return "a directory"
-    if stat.S_ISFIFO(mode):
-        return "a FIFO"
-    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
-        return "a device"
-    if stat.S_ISSOCK(mode):
-        return "a socket"
-    return "not a regular file"
-
-
 def _bytes(n: int) -> str:
     return f"{n} bytes" if n < 1 << 10 else f"{n / 2**10:.0f} KiB" if n < 1 << 20 else f"{n / 2**20:.0f} MiB"
 
@@ -79,7 +67,7 @@ def _open_regular(path: Path, max_bytes: int, refuse: Refuse) -> tuple[BinaryIO,
     except OSError as e:
         raise refuse(f"cannot be read ({e.strerror})") from None
     if not stat.S_ISREG(mode):
-        raise refuse(f"is {_kind(mode)}, not a file")
+        raise refuse(f"is {file_kind(mode)}, not a file")
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0))
     except OSError as e:
@@ -88,7 +76,7 @@ def _open_regular(path: Path, max_bytes: int, refuse: Refuse) -> tuple[BinaryIO,
     st = os.fstat(fd)
     if not stat.S_ISREG(st.st_mode):
         f.close()
-        raise refuse(f"is {_kind(st.st_mode)}, not a file")
+        raise refuse(f"is {file_kind(st.st_mode)}, not a file")
     if st.st_size > max_bytes:
         f.close()
         raise refuse(f"is {_bytes(st.st_size)}, over the {_bytes(max_bytes)} a map file of its kind may be")
@@ -104,7 +92,7 @@ def _check_map_file(path: Path) -> None:
     except OSError as e:
         raise InputError(f"{path}: cannot read the map ({e.strerror})") from None
     if not stat.S_ISREG(mode):
-        raise InputError(f"{path}: is {_kind(mode)}; a map is a map_server .yaml or a `gslam process` result .mcap")
+        raise InputError(f"{path}: is {file_kind(mode)}; a map is a map_server .yaml or a `gslam process` result .mcap")
 
 
 def _is_yaml(path: Path) -> bool:
