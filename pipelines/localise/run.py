@@ -435,7 +435,7 @@ def _run_scans(
     """Open the outputs, then every scan through the filter and into them, kept in `scans`. A signal or an
     error ends the loop and is kept there (not raised), so that the outputs are finished (or dropped) with the
     scans done. Each scan's messages are written as one: a signal meanwhile waits for them
-    (`interrupts.deferred`)."""
+    (`interrupts.whole_step`, as `gslam process` writes its steps)."""
     mount = log.mount
     base_of = (lambda p: p) if mount is None else mount.base_of
     odom_prev = None
@@ -468,7 +468,7 @@ def _run_scans(
                 thin = loc.poses[:: max(1, len(loc.poses) // MAX_PARTICLES_WRITTEN)]
                 particles = np.asarray(base_of(thin) if mount is not None else thin)
             scans.writing = True
-            with interrupts.deferred():  # the scan's pose, state, transforms and particles, and its count: all or none
+            with interrupts.whole_step:  # the scan's pose, state, transforms and particles, and its count: all or none
                 _write_step(out, t_s, stamp_s, st, base, odom_last, mount, step_ms)
                 if particles is not None:
                     out.write_proto_bytes(PARTICLES, ch.PosesInFrame, ch.poses_in_frame_bytes(stamp_s, particles,

@@ -205,7 +205,8 @@ class WholeStep:
 
 
 whole_step = WholeStep()
-"""`with interrupts.whole_step:` around the writing and counting of one step."""
+"""`with interrupts.whole_step:` around the writing and counting of one step (`gslam process`) or scan
+(`gslam localise`)."""
 
 
 @contextmanager
