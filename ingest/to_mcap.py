@@ -6,6 +6,7 @@ import math
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from gslam import __version__
 from mcaplog import channels as ch
@@ -79,11 +80,16 @@ def _write(writer: AtomicMcapWriter, ns: int, rec: Record) -> tuple[str, ...]:
 
 
 def write_log_mcap(
-    log: LogStream, out: Path, progress: Callable[[int, int], None] | None = None, source: Path | None = None
+    log: LogStream,
+    out: Path,
+    progress: Callable[[int, int], None] | None = None,
+    source: Path | None = None,
+    dataset_extra: dict[str, Any] | None = None,
 ) -> dict[str, int]:
     """Stream `log` into `out` atomically (nothing is left at `out` on an error or interruption);
     returns the message count per topic. A log with no record at all is refused (IngestError naming
-    `source`): an MCAP of nothing is no log."""
+    `source`): an MCAP of nothing is no log. `dataset_extra`: more fields for the `dataset` metadata (what
+    `gslam process` records of a log it ingests on the way)."""
     counts: dict[str, int] = {}
     writer = AtomicMcapWriter(out)
     try:
@@ -98,6 +104,7 @@ def write_log_mcap(
         if not counts:  # an MCAP with no message is no log: say so rather than write one
             raise IngestError(f"{source or log.dataset}: holds no scan, odometry or GPS record; nothing to ingest")
         meta = log.metadata()
+        meta["dataset"].update(dataset_extra or {})
         meta["dataset"]["written"] = counts
         meta["ingest"] = {
             "gslam_version": __version__,

@@ -25,10 +25,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from mcaplog.mcapio import MCAP_MAGIC
 from mcaplog.tempfiles import describe_non_regular, file_kind
 from pipelines.errors import InputError
-
-MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 def mcap_library(path: Path) -> str | None:
@@ -174,21 +173,6 @@ def _ingest_of(meta: dict, source: Path) -> str:
         return "stale"
 
 
-class _WithSource:
-    """A log stream whose `dataset` metadata also records the resolved source path and its fingerprint."""
-
-    def __init__(self, log: Any, extra: dict[str, Any]) -> None:
-        self._log, self._extra = log, extra
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._log, name)
-
-    def metadata(self) -> dict[str, dict[str, Any]]:
-        meta = self._log.metadata()
-        meta.setdefault("dataset", {}).update(self._extra)
-        return meta
-
-
 def prepare(
     source: Path,
     output: Path,
@@ -234,5 +218,5 @@ def prepare(
 
     log = open_log(source, fmt)  # refuses a FIFO or a device before the fingerprint reads anything
     recorded = {"source_path": str(source.resolve()), "source_fingerprint": source_fingerprint(source)}
-    write_log_mcap(_WithSource(log, recorded), mcap, progress)
+    write_log_mcap(log, mcap, progress, source, dataset_extra=recorded)
     return DirectInput(mcap, source)

@@ -27,7 +27,7 @@ import numpy as np
 
 from gslam.motion import wrap_angle
 from mcaplog import channels as ch
-from mcaplog.mcapio import McapInput, Message, read_error
+from mcaplog.mcapio import MCAP_MAGIC, McapInput, Message, read_error
 from pipelines.errors import InputError
 from pipelines.evaluation.mcap_info import message_count
 from pipelines.evaluation.metrics import interpolate_positions, relations_error
@@ -38,7 +38,6 @@ POSE_TOPIC = "/localise/pose"
 STATE_TOPIC = "/localise/state"
 PARTICLES_TOPIC = "/localise/particles"
 MAP_TOPIC = "/localise/map"
-MCAP_MAGIC = b"\x89MCAP0\r\n"
 MATCH_TOLERANCE_S = 0.01
 """A reference pose is paired with a scan when their stamps differ by at most this (evo's default
 `--t_max_diff`); the nearest is taken."""
