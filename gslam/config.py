@@ -230,6 +230,26 @@ class FilterConfig:
     pose moved by the noise-free motion (as GMapping fills them); "sampled", the motion-model samples
     the filter carries (their noise is only there to be weighed at the next update)."""
 
+    # Every scan placed by the final map (gslam.placement).
+    place_every_scan: bool = True
+    """When the run ends, match every scan of the best particle's trajectory against its final map (from
+    its recorded pose, or the scan before it as placed moved by the recorded motion), so that no scan's
+    pose is the odometry's between updates; a scan whose match is not kept is placed between its matched
+    neighbours. False: the trajectory as the filter recorded it (docs/CHOICES.md)."""
+    place_step_xy_m: float = 0.01
+    """The placement's first climb step in x and y: its start is within the odometry's error over one
+    scan of the answer, so it climbs in finer steps than the update's matcher (match_step_xy_m)."""
+    place_step_phi_rad: float = 0.01
+    """The placement's first climb step in heading."""
+    place_levels: int = 2
+    """Step halvings of the placement's climb (then match_polish_iterations Gauss-Newton steps)."""
+    place_min_hit_fraction: float = 0.5
+    """A placement match is kept when at least this share of the scan's returns find the map near them."""
+    place_max_shift_m: float = 0.5
+    """... and it moves the scan's start by less than this (more is a jump, not a correction) ..."""
+    place_max_turn_rad: float = 0.25
+    """... and turns it by less than this."""
+
     # Resampling.
     resample_threshold: float = 0.5
     """Resample (RSR) when the effective sample size falls below this fraction of N."""
@@ -374,6 +394,12 @@ _LIMITS: dict[str, tuple[float, float, bool]] = {
     "proposal_sigma_phi_rad": (0, _RADIANS, True),
     "min_travel_m": (0, _METRES, True),
     "min_turn_rad": (0, _RADIANS, True),
+    "place_step_xy_m": (0, _CELL_M, False),
+    "place_step_phi_rad": (0, _RADIANS, False),
+    "place_levels": (0, 30, True),
+    "place_min_hit_fraction": (0, 1, True),
+    "place_max_shift_m": (0, _METRES, False),
+    "place_max_turn_rad": (0, _RADIANS, False),
     "resample_threshold": (0, 1, False),
     "speed_sigma_mps": (0, _METRES, True),
     "speed_sigma_rel": (0, _METRES, True),

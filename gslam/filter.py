@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 from typing import Protocol
 
@@ -13,6 +13,7 @@ from gslam import mapupdate
 from gslam.ancestry import AncestryTree
 from gslam.config import FilterConfig
 from gslam.motion import wrap_angle, wrap_angle_scalar
+from gslam.placement import MatchSettings, Placement, PlacementLimits, place_scans
 from gslam.pointmap import PointMap, distinct_maps
 from gslam.resampling import continue_from_parents, effective_sample_size, reweight_and_resample
 from gslam.scan import Scan
@@ -90,6 +91,10 @@ class GSlamFilter:
         # the running mean of (error / model sd)^2; 1: the model holds until the matches show otherwise
         self._heading_error_ratio2 = 1.0
         self._heading_noise = np.zeros(n)  # the model's heading noise drawn since the last update, unscaled
+        self._updated: list[bool] = []  # per step: whether it updated the maps (its poses were matched)
+        self.placed: tuple[np.ndarray, np.ndarray] | None = None
+        """(times, poses) of the best particle's trajectory with every scan placed by its final map
+        (`place_every_scan`); `best_trajectory()` gives it once set."""
 
     # ------------------------------------------------------------------------------------------
     def best_particle(self) -> int:
@@ -105,7 +110,56 @@ class GSlamFilter:
         return self._summary
 
     def best_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
+        """The best particle's pose at every scan: as recorded, or placed by its final map once
+        `place_every_scan` has run."""
+        if self.placed is not None:
+            return self.placed
         return self.tree.trajectory(self.best_particle())
+
+    def place_every_scan(self, scans: Iterable[Scan], progress: Callable[[int, int], None] | None = None) -> Placement:
+        """Match every scan of the run (`scans`, the ones given to `step`, in order) against the best
+        particle's final map (`gslam.placement`); `best_trajectory()` then gives the placed poses. The
+        maps and the particles are not changed."""
+        cfg = self.cfg
+        best = self.best_particle()
+        times, recorded = self.tree.trajectory(best)
+        xy, p = self.map_points(best)
+        settings = MatchSettings(
+            cell_m=cfg.match_cell_m,
+            kernel=cfg.match_kernel,
+            min_p=cfg.match_min_p,
+            margin_m=cfg.match_window_margin_m,
+            step_xy_m=cfg.place_step_xy_m,
+            step_phi_rad=cfg.place_step_phi_rad,
+            levels=cfg.place_levels,
+            max_iterations=cfg.match_max_iterations,
+            score_sigma_m=cfg.match_sigma_m,
+            score_sigma_rad=cfg.match_sigma_rad,
+            like_sigma_m=cfg.weight_sigma_m,
+            miss_m=cfg.weight_miss_m,
+            line_pair_m=cfg.match_line_pair_m,
+            polish_iterations=cfg.match_polish_iterations,
+            climb_stride=cfg.match_climb_stride,
+            fine_stride=cfg.match_fine_stride,
+            fine_levels=min(cfg.match_fine_levels, cfg.place_levels + 1),
+        )
+        limits = PlacementLimits(
+            min_hit_fraction=cfg.place_min_hit_fraction,
+            max_shift_m=cfg.place_max_shift_m,
+            max_turn_rad=cfg.place_max_turn_rad,
+        )
+
+        def ends() -> Iterable[tuple[np.ndarray, float]]:
+            for scan in scans:
+                scan = self._as_observed(scan)
+                _, z, b = scan.return_polar()
+                yield np.column_stack([z * np.cos(b), z * np.sin(b)]), scan.geometry.angle_increment_rad
+
+        placement = place_scans(
+            xy, p, recorded, ends(), settings, limits, anchored=np.asarray(self._updated), progress=progress
+        )
+        self.placed = (times, placement.poses)
+        return placement
 
     def map_points(self, particle: int) -> tuple[np.ndarray, np.ndarray]:
         """The particle's map as points (K, 2) with probabilities (K,)."""
@@ -121,9 +175,9 @@ class GSlamFilter:
             return True
         return self._travel_m >= self.cfg.min_travel_m or self._turn_rad >= self.cfg.min_turn_rad
 
-    # ------------------------------------------------------------------------------------------
-    def step(self, scan: Scan, predict: Predictor | None = None, intensities: np.ndarray | None = None) -> StepResult:
-        """One G-SLAM step for scan z_t after the controls since the previous scan."""
+    def _as_observed(self, scan: Scan) -> Scan:
+        """The scan as the filter observes it: returns nearer than min_range_m or beyond usable_range_m
+        are not observations."""
         cfg = self.cfg
         if cfg.min_range_m is not None and scan.min_range_m != cfg.min_range_m:
             scan = Scan(scan.t_s, scan.ranges_m, scan.geometry, cfg.min_range_m)
@@ -131,6 +185,13 @@ class GSlamFilter:
             # Beyond it nothing is observed and free space ends there (GMapping's maxUrange).
             usable = replace(scan.geometry, max_range_m=cfg.usable_range_m)
             scan = Scan(scan.t_s, scan.ranges_m, usable, scan.min_range_m)
+        return scan
+
+    # ------------------------------------------------------------------------------------------
+    def step(self, scan: Scan, predict: Predictor | None = None, intensities: np.ndarray | None = None) -> StepResult:
+        """One G-SLAM step for scan z_t after the controls since the previous scan."""
+        cfg = self.cfg
+        scan = self._as_observed(scan)
         # 1. Draw s_t^i from the motion model.
         if predict is not None:
             if cfg.motion_noise_adaptive:
@@ -151,6 +212,7 @@ class GSlamFilter:
         if not self._due():
             recorded = self._filled if cfg.fill_skipped == "odometry" else self.poses
             self.tree.record(scan.t_s, recorded)
+            self._updated.append(False)
             self.steps += 1
             ess, best = self._weights_summary()
             return StepResult(
@@ -191,6 +253,7 @@ class GSlamFilter:
             matched,
         )
         self.tree.record(scan.t_s, self.poses)
+        self._updated.append(True)
         if parents is not None:
             self.poses, self.maps, self.weights = continue_from_parents(parents, self.poses, self.maps, self.tree)
             if self._layout is not None:

@@ -304,6 +304,24 @@ def _result_metadata(run: _OpenRun, times: _StepTimes, summary: ProcessSummary) 
     }
 
 
+def _place_every_scan(run: _OpenRun, times: _StepTimes, notice: Callable[[str], None] | None) -> dict | None:
+    """Every scan of the final trajectory matched against the final map (`GSlamFilter.place_every_scan`,
+    `place_every_scan` on): how many were matched, placed between matched neighbours, or had no returns,
+    and the seconds it took. None when off, for other methods, and for a run cut short (its trajectory is
+    kept as recorded)."""
+    flt = run.runner.filter
+    if times.interrupted or not times.scan_indices or not run.cfg.filter.place_every_scan:
+        return None
+    if not hasattr(flt, "place_every_scan"):
+        return None
+    if notice is not None:
+        notice(f"placing every scan in the final map ({len(times.scan_indices)} scans)")
+    t0 = time.perf_counter()
+    counts = flt.place_every_scan(run.runner.scans_at(times.scan_indices)).counts()
+    counts["seconds"] = round(time.perf_counter() - t0, 3)
+    return counts
+
+
 def _finish(run: _OpenRun, times: _StepTimes, notice: Callable[[str], None] | None) -> ProcessSummary:
     """Finish every output with the steps done (the result MCAP last, so that it records the others'
     figures); a signal meanwhile waits for it. An output that cannot be finished is dropped, the others
@@ -313,8 +331,10 @@ def _finish(run: _OpenRun, times: _StepTimes, notice: Callable[[str], None] | No
     try:
         # A signal from here on waits for the outputs to be finished (a second one aborts them).
         with interrupts.deferred():
+            placement = _place_every_scan(run, times, notice)
             summary = _summary(run, times)
             result_meta = _result_metadata(run, times, summary)
+            result_meta["placement"] = placement
             occupancy = None
             if run.cfg.occupancy and not times.interrupted and times.scan_indices:
                 if notice is not None:

@@ -382,7 +382,7 @@ def test_the_result_carries_the_transform_tree_for_foxglove(tmp_path):
     map -> odom -> base_link -> laser, map -> base_link is the step's /slam/pose, base_link -> laser the
     bag's mount; the scans are in the laser frame; no schema is written twice. /slam/path at each map
     update is the path so far: it ends at that step's /slam/pose, and the last one is the final
-    /slam/trajectory at the updates."""
+    /slam/trajectory at the updates, before the placement of every scan moved them by centimetres."""
     import json
     import math
 
@@ -423,7 +423,9 @@ def test_the_result_carries_the_transform_tree_for_foxglove(tmp_path):
         assert t_path == poses[i][0] and len(path.poses) == k + 1
         step_pose = poses[i][1].pose.position
         np.testing.assert_allclose(xy(path)[-1], [step_pose.x, step_pose.y], atol=1e-9)
-    np.testing.assert_allclose(xy(paths[-1][1]), xy(final[0][1])[updated], atol=1e-9)
+    # The final trajectory is that path with every scan placed by the final map: a few centimetres off
+    # (2.6 cm at most, measured), never a jump (place_max_shift_m 0.5 m).
+    np.testing.assert_allclose(xy(paths[-1][1]), xy(final[0][1])[updated], atol=0.1)
     for (t_tf, tf), (t_pose, pose) in zip(tfs, poses, strict=True):
         assert t_tf == t_pose
         links = {(x.parent_frame_id, x.child_frame_id): planar(x) for x in tf.transforms}

@@ -1,6 +1,9 @@
 """`gslam bench`'s suites behind one call: which suite runs what, on which logs, and the Markdown section it
 gives (each suite's own module runs it and formats its table). Bad options raise `OptionError` naming the
-option, before anything runs."""
+option, before anything runs.
+
+The peers' harnesses (`--gmapping`, `--lama`) are optional: a suite without one (no run.sh there, or LaMa
+neither built nor buildable) says so in one line and runs without that peer."""
 
 from __future__ import annotations
 
@@ -27,6 +30,7 @@ class BenchRequest:
     data: Path = Path("../shared/datasets/carpark")
     freiburg: Path = Path("../shared/datasets/freiburg")
     gmapping: Path = Path("../shared/tools/gmapping")
+    lama: Path = Path("../shared/tools/lama")
     datasets: Path = Path("../shared/datasets")
     logs: str | None = None
     command: str = "gslam bench"
@@ -95,12 +99,33 @@ def _gmapping_harness(request: BenchRequest, echo: Callable[[str], None], withou
     return None
 
 
+def _lama_harness(request: BenchRequest, echo: Callable[[str], None]) -> Path | None:
+    """LaMa's harness directory, or None (said in one line) when it has no run.sh, or when LaMa is not built
+    and `LAMA_MIRROR` (the git dir of iris-ua/iris_lama the harness builds it from) is not set."""
+    import os
+
+    from pipelines.bench.lama import lama_build_dir, lama_built
+
+    if not (request.lama / "run.sh").exists():
+        echo(f"--lama {request.lama}: no run.sh there; LaMa is left out")
+        return None
+    if not lama_built() and not os.environ.get("LAMA_MIRROR"):
+        echo(
+            f"--lama {request.lama}: LaMa is not built ({lama_build_dir() / 'bin' / 'lama_driver'}) and LAMA_MIRROR "
+            "(a git dir of iris-ua/iris_lama to build it from) is not set; LaMa is left out"
+        )
+        return None
+    return request.lama
+
+
 def _robustness(request: BenchRequest, echo: Callable[[str], None]) -> str:
     from pipelines.bench.robustness import robustness_section, run_robustness
 
     only = corpus_logs(request.logs, request.datasets)
     harness = _gmapping_harness(request, echo, "GMapping is left out")
-    results = run_robustness(request.datasets, list(range(request.seeds or 3)), echo, harness, only=only)
+    lama = _lama_harness(request, echo)
+    seeds = list(range(request.seeds or 3))
+    results = run_robustness(request.datasets, seeds, echo, harness, only=only, lama=lama)
     return robustness_section(results, request.command, *_machine(), 30, 0)
 
 
@@ -133,10 +158,15 @@ def _freiburg_logs(request: BenchRequest) -> list[Path]:
 
 
 def _freiburg(request: BenchRequest, echo: Callable[[str], None]) -> str:
+    from pipelines.bench.lama import LamaRun
     from pipelines.bench.suites import freiburg_section, run_suite
 
-    runs = run_suite("freiburg", _freiburg_logs(request), [30], list(range(request.seeds or 5)), [0], 1, echo)
-    return freiburg_section(runs, request.command, *_machine())
+    logs = _freiburg_logs(request)
+    lama = _lama_harness(request, echo)
+    lama_runs: list[LamaRun] = []
+    seeds = list(range(request.seeds or 5))
+    runs = run_suite("freiburg", logs, [30], seeds, [0], 1, echo, lama=lama, lama_runs=lama_runs)
+    return freiburg_section(runs, request.command, *_machine(), lama_runs)
 
 
 def _speed(request: BenchRequest, echo: Callable[[str], None]) -> str:
@@ -149,10 +179,14 @@ def _speed(request: BenchRequest, echo: Callable[[str], None]) -> str:
     # growth in N; the Freiburg logs at N 30, as GMapping was measured.
     jobs = [(request.data, [8, 30, 100], [0]), (request.data, [30], [1]), (logs[0], [30], [0]), (logs[1], [30], [0, 1])]
     harness = _gmapping_harness(request, echo, "the table gives GMapping's reference times")
-    runs, gm_runs = [], []
+    lama = _lama_harness(request, echo)
+    runs, gm_runs, lama_runs = [], [], []
     for log, ns, counts in jobs:
-        runs += run_suite("speed", [log], ns, [0], counts, 3, echo, harness, gm_runs)
-    return speed_section(runs, request.command, *_machine(), 3, gm_runs)
+        before = len(lama_runs)
+        runs += run_suite("speed", [log], ns, [0], counts, 3, echo, harness, gm_runs, lama, lama_runs)
+        if lama is not None and 30 in ns and 0 in counts and len(lama_runs) == before:
+            lama = None  # it failed, and said why: not again for the next logs
+    return speed_section(runs, request.command, *_machine(), 3, gm_runs, lama_runs)
 
 
 def _carpark(request: BenchRequest, echo: Callable[[str], None]) -> str:

@@ -1,11 +1,18 @@
-"""`gslam bench --suite freiburg|speed`: indoor accuracy and speed tables for docs/BENCHMARKS.md.
+"""`gslam bench --suite freiburg|speed`: indoor accuracy and speed tables for docs/BENCHMARKS.md, G-SLAM
+beside its peers: OpenSLAM GMapping (`../shared/tools/gmapping`) and IRIS LaMa in its two modes, PF-SLAM and
+online Slam2D (`../shared/tools/lama`, `pipelines.bench.lama`), each run the way its ROS node runs it.
 
 Each suite writes its own section of the benchmark file (between `<!-- suite:NAME -->` markers), so the
 Car Park tables, the Freiburg table and the speed table are regenerated independently.
+
+Accuracy is compared in translation and rotation: G-SLAM holds a log when its mean relations error, in
+each of the two, is at or below the better (lower) of the peers' means (GMapping, LaMa PF, LaMa Slam2D;
+`at_or_below_better_peer`).
 """
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import statistics
@@ -16,6 +23,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from pipelines.bench.lama import MODE_NAMES, LamaRun, lama_note, lama_seed, run_lama
+
 # GMapping (OpenSLAM, C++ -O3, 30 particles, ROS defaults) measured with ../shared/tools/gmapping on
 # this kind of machine (its README): relations translation error per seed (m), rotation (deg), wall (s).
 GMAPPING_REFERENCE: dict[str, dict[str, object]] = {
@@ -23,6 +32,26 @@ GMAPPING_REFERENCE: dict[str, dict[str, object]] = {
     "intel": {"trans_m": [0.040, 0.041], "rot_deg": 1.90, "wall_s": 68.7, "peak_mb": 147},
     "carpark": {"trans_m": [], "rot_deg": float("nan"), "wall_s": 9.9, "peak_mb": float("nan")},
 }
+
+
+CARTOGRAPHER_PUBLISHED: dict[str, tuple[float, float]] = {
+    "intel": (0.0229, 0.45),
+    "mit-csail": (0.0319, 0.37),
+    "fr079": (0.0452, 0.54),
+    "aces": (0.0375, 0.37),
+}
+"""Cartographer's relations error (translation m, rotation deg) as published (Hess et al. 2016, Table II:
+tuned per log, with global loop closure): the far aim, not run here."""
+
+
+def cartographer_lines() -> list[str]:
+    """The far aim under a comparison table: Cartographer's published figures."""
+    figures = ", ".join(f"{log} {t:.4f} m / {r:.2f} deg" for log, (t, r) in CARTOGRAPHER_PUBLISHED.items())
+    return [
+        "",
+        f"The far aim: Cartographer as published (Hess et al. 2016, Table II; tuned per log, with global loop "
+        f"closure, not run here): {figures}.",
+    ]
 
 
 HEADER = (
@@ -56,11 +85,14 @@ class GMappingRun:
     wall_s: float
     peak_mb: float
     trans_m: float | None
+    rot_deg: float | None = None
+    """Relations rotation error, mean (deg): the tables compare translation and rotation."""
 
 
 def run_gmapping(harness: Path, log: Path, particles: int, seed: int, workdir: Path) -> GMappingRun:
     """`run.sh LOG PARTICLES SEED` of the GMapping harness (it builds GMapping once if needed); its one
-    summary line parsed: wall (s, /usr/bin/time), peak (MB), relations translation error (m)."""
+    summary line parsed: wall (s, /usr/bin/time), peak (MB), relations translation (m) and rotation (deg)
+    errors (None when the log has no relations)."""
     env = dict(os.environ, GM_OUT=str(workdir / "gmapping"))
     cmd = ["bash", str(harness / "run.sh"), str(log), str(particles), str(seed)]
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
@@ -71,12 +103,79 @@ def run_gmapping(harness: Path, log: Path, particles: int, seed: int, workdir: P
         raise RuntimeError(f"{' '.join(cmd)} failed: {last}")
     peak = re.search(r"peak ([0-9]+) MB", line)
     trans = re.search(r"trans ([0-9.]+)\+-", line)
+    rot = re.search(r"rot ([0-9.]+) deg", line)
     return GMappingRun(
         log.name.split(".")[0],
         float(wall.group(1)),
         float(peak.group(1)) if peak else float("nan"),
         float(trans.group(1)) if trans else None,
+        float(rot.group(1)) if rot else None,
     )
+
+
+Errors = tuple[list[float | None], list[float | None]]
+"""One method's relations errors on one log: translation means (m) and rotation means (deg), one per run."""
+
+
+def _finite(values: list[float | None]) -> list[float]:
+    return [v for v in values if v is not None and math.isfinite(v)]
+
+
+def _mean(values: list[float | None]) -> float | None:
+    values = _finite(values)
+    return statistics.mean(values) if values else None
+
+
+def better_peer(peers: dict[str, float | None]) -> tuple[str, float] | None:
+    """The peer with the lowest mean error (the first named on a tie), or None when no peer has one."""
+    known = [(name, v) for name, v in peers.items() if v is not None and math.isfinite(v)]
+    return min(known, key=lambda kv: kv[1]) if known else None
+
+
+def at_or_below_better_peer(value: float | None, peers: dict[str, float | None]) -> bool | None:
+    """The issue's rule for one error (translation or rotation): G-SLAM's mean `value` at or below the better
+    (lower) of the peers' means. None when G-SLAM's mean or every peer's is missing (not run, no relations)."""
+    best = better_peer(peers)
+    if best is None or value is None or not math.isfinite(value):
+        return None
+    return value <= best[1]
+
+
+def peer_verdict(gslam: Errors, peers: dict[str, Errors]) -> str:
+    """The table's verdict cell: for translation and for rotation, whether G-SLAM's mean is at or below the
+    better peer's mean, and that peer with its mean, e.g. `trans yes (LaMa PF 0.047), rot no (LaMa Slam2D
+    1.50)`."""
+    parts = []
+    for i, (what, fmt) in enumerate((("trans", ".3f"), ("rot", ".2f"))):
+        means = {name: _mean(errors[i]) for name, errors in peers.items()}
+        ok = at_or_below_better_peer(_mean(gslam[i]), means)
+        best = better_peer(means)
+        if ok is None:
+            parts.append(f"{what} n/a")
+        else:
+            parts.append(f"{what} {'yes' if ok else 'no'} ({best[0]} {format(best[1], fmt)})")
+    return ", ".join(parts)
+
+
+def errors_cell(errors: Errors) -> str:
+    """`translation mean ± sd; rotation mean ± sd` over the runs (no ± for one run; n/a for none)."""
+    trans, rot = _mean_sd(errors[0]), _mean_sd(errors[1], ".2f")
+    return "n/a" if trans == rot == "n/a" else f"{trans}; {rot}"
+
+
+def lama_errors(lama_runs: list[LamaRun], log: str, mode: str) -> Errors:
+    """The relations errors of LaMa's runs in `mode` on `log`."""
+    sel = [r for r in lama_runs if r.log == log and r.mode == mode]
+    return [r.trans_m for r in sel], [r.rot_deg for r in sel]
+
+
+def _lama_time(lama_runs: list[LamaRun], log: str, mode: str) -> str:
+    """LaMa's median wall (s), largest peak (MB) and updates on `log` in `mode`; `-` when it did not run."""
+    sel = [r for r in lama_runs if r.log == log and r.mode == mode]
+    if not sel:
+        return "-"
+    wall = statistics.median(r.wall_s for r in sel)
+    return f"{wall:.1f}, {max(r.peak_mb for r in sel):.0f}, {sel[0].processed}/{sel[0].total}"
 
 
 def _percentile(values: list[float], q: float) -> float:
@@ -129,8 +228,8 @@ def ingest_to(log: Path, workdir: Path) -> Path:
     return out
 
 
-def _mean_sd(values: list[float], fmt: str = ".3f") -> str:
-    values = [v for v in values if v is not None]
+def _mean_sd(values: list[float | None], fmt: str = ".3f") -> str:
+    values = _finite(values)
     if not values:
         return "n/a"
     if len(values) == 1:
@@ -138,7 +237,14 @@ def _mean_sd(values: list[float], fmt: str = ".3f") -> str:
     return f"{format(statistics.mean(values), fmt)} ± {format(statistics.stdev(values), fmt)}"
 
 
-def freiburg_section(runs: list[SuiteRun], command: str, machine: str, software: str) -> str:
+def freiburg_section(
+    runs: list[SuiteRun], command: str, machine: str, software: str, lama_runs: list[LamaRun] | None = None
+) -> str:
+    """The Freiburg section: G-SLAM's runs one by one, then per log G-SLAM beside GMapping (its reference
+    figures) and LaMa's two modes (`lama_runs`, run beside G-SLAM's; none: LaMa's cells read n/a), in
+    translation and rotation, with the verdict against the better peer; then wall time and memory."""
+    lama_runs = lama_runs or []
+    seeds = sorted({r.seed for r in runs})
     lines = [
         "## Freiburg indoor logs: relations error (Kuemmerle et al. 2009)",
         "",
@@ -147,9 +253,15 @@ def freiburg_section(runs: list[SuiteRun], command: str, machine: str, software:
         f"- Software: {software}",
         f"- Date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}",
         "- Each run is `gslam process LOG.mcap OUT.mcap --particles N --seed S` with the defaults, timed whole",
-        "  in a child process (import to exit, MCAP and Rerun recording written), then `gslam eval`.",
+        f"  in a child process (import to exit, MCAP and Rerun recording written), then `gslam eval`; seeds"
+        f" {', '.join(map(str, seeds))}.",
         "- GMapping: OpenSLAM GMapping, 30 particles, ROS defaults, C++ -O3, measured on this kind of machine",
-        "  with `../shared/tools/gmapping` (its README; seeds 0, 1, 2 on mit-csail, 0, 1 on intel).",
+        "  with `../shared/tools/gmapping` (its README; seeds 0, 1, 2 on mit-csail, 0, 1 on intel; rotation:",
+        "  the mean over those seeds). Reference figures, not run beside this table.",
+        *lama_note(seeds, bool(lama_runs)),
+        "- Peers' errors by the same relations metric (`../shared/tools/gmapping/eval_relations.py`). Verdict:",
+        "  G-SLAM's mean at or below the better (lower) of the peers' means (GMapping, LaMa PF, LaMa Slam2D),",
+        "  in translation and in rotation; in brackets the better peer and its mean.",
         "",
         "| log | N | seed | translation (m) | rotation (deg) | wall (s) | ms per update median / p90 "
         "| updates | final map points | peak MB (filter + rrd) |",
@@ -165,23 +277,46 @@ def freiburg_section(runs: list[SuiteRun], command: str, machine: str, software:
         )
     lines += [
         "",
-        "| log | N | seeds | translation (m), mean ± sd over seeds | worst seed (m) | rotation (deg) | wall (s) "
-        "| GMapping translation (m) | GMapping rotation (deg) | GMapping wall (s) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "Translation (m); rotation (deg): mean ± sd over the seeds (one run: no sd).",
+        "",
+        "| log | N | seeds | G-SLAM | worst seed (m) | GMapping (reference) | LaMa PF | LaMa Slam2D "
+        "| at or below the better peer |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
-    for log in dict.fromkeys(r.log for r in runs):
-        for n in sorted({r.particles for r in runs if r.log == log}):
-            sel = [r for r in runs if r.log == log and r.particles == n]
-            trans = [r.metrics["relations_trans_m"] for r in sel]
-            gm = GMAPPING_REFERENCE.get(log, {})
-            gm_t = gm.get("trans_m") or []
-            lines.append(
-                f"| {log} | {n} | {len(sel)} | {_mean_sd(trans)} | {max(trans):.3f} "
-                f"| {_mean_sd([r.metrics['relations_rot_deg'] for r in sel], '.2f')} "
-                f"| {statistics.median(r.wall_s for r in sel):.1f} "
-                f"| {' / '.join(f'{v:.3f}' for v in gm_t) or 'n/a'} | {gm.get('rot_deg', float('nan')):.2f} "
-                f"| {gm.get('wall_s', float('nan'))} |"
-            )
+    groups = [
+        (log, n, [r for r in runs if r.log == log and r.particles == n])
+        for log in dict.fromkeys(r.log for r in runs)
+        for n in sorted({r.particles for r in runs if r.log == log})
+    ]
+    for log, n, sel in groups:
+        gslam: Errors = ([r.metrics["relations_trans_m"] for r in sel], [r.metrics["relations_rot_deg"] for r in sel])
+        gm = GMAPPING_REFERENCE.get(log, {})
+        peers: dict[str, Errors] = {"GMapping": (list(gm.get("trans_m") or []), [gm.get("rot_deg")])}
+        for mode in MODE_NAMES:
+            peers[MODE_NAMES[mode]] = lama_errors(lama_runs, log, mode)
+        lines.append(
+            f"| {log} | {n} | {len(sel)} | {errors_cell(gslam)} | {max(_finite(gslam[0]), default=float('nan')):.3f} "
+            f"| {errors_cell(peers['GMapping'])} | {errors_cell(peers['LaMa PF'])} "
+            f"| {errors_cell(peers['LaMa Slam2D'])} | {peer_verdict(gslam, peers)} |"
+        )
+    lines += cartographer_lines()
+    lines += [
+        "",
+        "Wall time (s, median over seeds) and peak memory (MB, the largest); LaMa's updates: the scans it",
+        "updated on / the log's scans. G-SLAM's wall includes writing the result MCAP and the Rerun recording.",
+        "",
+        "| log | N | G-SLAM wall, peak (filter + rrd) | GMapping wall (reference) | LaMa PF wall, peak, updates "
+        "| LaMa Slam2D wall, peak, updates |",
+        "|---|---|---|---|---|---|",
+    ]
+    for log, n, sel in groups:
+        gm_wall = GMAPPING_REFERENCE.get(log, {}).get("wall_s")
+        lama_cells = [_lama_time(lama_runs, log, mode) for mode in MODE_NAMES]
+        lines.append(
+            f"| {log} | {n} | {statistics.median(r.wall_s for r in sel):.1f}, {max(r.peak_mb for r in sel):.0f} + "
+            f"{max(r.writer_peak_mb for r in sel):.0f} | {'-' if gm_wall is None else gm_wall} "
+            f"| {' | '.join(lama_cells)} |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -192,7 +327,13 @@ def speed_section(
     software: str,
     repeats: int,
     gmapping_runs: list[GMappingRun] | None = None,
+    lama_runs: list[LamaRun] | None = None,
 ) -> str:
+    """The speed section: per log, N and threads, G-SLAM's wall, update times and peak memory (medians over
+    `repeats`), beside GMapping's and LaMa's two modes' wall and peak from runs made right after G-SLAM's
+    (`gmapping_runs`, `lama_runs`), with the ratio peer wall / G-SLAM wall. Without GMapping runs, its
+    reference times; without LaMa runs, `-`."""
+    lama_runs = lama_runs or []
     gm_measured = {
         log: [g for g in gmapping_runs or [] if g.log == log] for log in {g.log for g in gmapping_runs or []}
     }
@@ -225,10 +366,23 @@ def speed_section(
         "  (`gslam process`) + that of the Rerun recording's child writer it starts",
         "  (`pipelines.outputs.rerun_recorder`).",
         *gm_note,
+        *(
+            [
+                "- LaMa's times: `../shared/tools/lama/run.sh LOG pf 30 1` and `run.sh LOG slam2d` run right after",
+                "  GMapping's, after each of gslam's runs at N 30 with the default threads: median wall of",
+                f"  {repeats}, largest peak (the driver under `/usr/bin/time`, one core); in brackets the ratio LaMa",
+                "  wall / gslam wall (above 1: gslam is faster). The Car Park: the same text log as GMapping's",
+                "  (LaMa's harness has the same reader).",
+            ]
+            if lama_runs
+            else []
+        ),
+        *lama_note([0], bool(lama_runs), slam2d_each_repeat=True),
         "",
         "| log | N | threads | wall (s) | ms per update median / p90 | update ratio | peak MB (filter + rrd) | error "
-        "| GMapping wall (s), peak MB | ratio |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| GMapping wall (s), peak MB | ratio | LaMa PF wall (s), peak MB (ratio) | LaMa Slam2D wall (s), peak MB "
+        "(ratio) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     keys = list(dict.fromkeys((r.log, r.particles, r.threads) for r in runs))
     for log, n, k in keys:
@@ -237,9 +391,9 @@ def speed_section(
         upd = [statistics.median(r.update_ms) for r in sel]
         p90 = [_percentile(r.update_ms, 90) for r in sel]
         m = sel[0].metrics
-        err = m.get("relations_trans_m")
+        err, rot = m.get("relations_trans_m"), m.get("relations_rot_deg")
         err_s = (
-            f"{err:.3f} m (relations)"
+            f"{err:.3f} m{f', {rot:.2f} deg' if rot is not None else ''} (relations)"
             if err is not None
             else f"{m.get('gps_mean_error_m') or float('nan'):.2f} m (GPS)"
         )
@@ -248,12 +402,21 @@ def speed_section(
         if n == 30 and gm_measured.get(log):
             gm = statistics.median(g.wall_s for g in gm_measured[log])
             gm_shown = f"{gm:.1f}, {max(g.peak_mb for g in gm_measured[log]):.0f} MB"
+        lama_cells = []
+        for mode in MODE_NAMES:
+            sel_lama = [r for r in lama_runs if r.log == log and r.mode == mode] if n == 30 else []
+            lama_wall = statistics.median(r.wall_s for r in sel_lama) if sel_lama else None
+            lama_cells.append(
+                f"{lama_wall:.1f}, {max(r.peak_mb for r in sel_lama):.0f} MB ({lama_wall / wall:.2f})"
+                if lama_wall is not None
+                else "-"
+            )
         shown = k or f"{os.cpu_count()} (default)"
         lines.append(
             f"| {log} | {n} | {shown} | {wall:.1f} | {statistics.median(upd):.1f} / {statistics.median(p90):.1f} "
             f"| {statistics.median(r.update_ratio for r in sel):.2f} | {max(r.peak_mb for r in sel):.0f} + "
             f"{max(r.writer_peak_mb for r in sel):.0f} | {err_s} "
-            f"| {gm_shown} | {f'{gm / wall:.2f}' if gm else '-'} |"
+            f"| {gm_shown} | {f'{gm / wall:.2f}' if gm else '-'} | {' | '.join(lama_cells)} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -292,10 +455,15 @@ def run_suite(
     progress: Callable[[str], None],
     gmapping: Path | None = None,
     gmapping_runs: list[GMappingRun] | None = None,
+    lama: Path | None = None,
+    lama_runs: list[LamaRun] | None = None,
 ) -> list[SuiteRun]:
     """Every log x N x threads x seed, `repeats` times. With `gmapping` (the harness directory), each run
-    at N 30 with the default threads on a CARMEN log is followed by GMapping's on the same log (appended
-    to `gmapping_runs`), so that the two see the same machine: their ratio holds on a noisy machine."""
+    at N 30 with the default threads is followed by GMapping's on the same log (appended to `gmapping_runs`),
+    so that the two see the same machine: their ratio holds on a noisy machine. With `lama` (LaMa's harness)
+    likewise, then LaMa PF at seed `lama_seed(seed)` and, after the runs at the first seed (Slam2D is
+    deterministic: once per repeat), LaMa Slam2D (appended to `lama_runs`). A peer that cannot build or run
+    is said so in one progress line and left out of the rest of the suite."""
     runs: list[SuiteRun] = []
     with tempfile.TemporaryDirectory(prefix=f"gslam-bench-{suite}-") as tmp:
         work = Path(tmp)
@@ -313,13 +481,32 @@ def run_suite(
                                 f"{r.wall_s:.1f} s, "
                                 + (f"{err:.3f} m" if err is not None else f"{r.metrics.get('gps_mean_error_m'):.2f} m")
                             )
-                            if gmapping is not None and gmapping_runs is not None and n == 30 and k == 0:
+                            if n != 30 or k != 0:
+                                continue
+                            if gmapping is not None and gmapping_runs is not None:
                                 try:
                                     g = run_gmapping(gmapping, gmapping_input(log, mcap, work), 30, seed, work)
                                 except RuntimeError as e:  # e.g. no GM_MIRROR to build it from
                                     progress(f"{suite}: GMapping not run, reference times instead: {e}")
                                     gmapping = None
-                                    continue
-                                gmapping_runs.append(g)
-                                progress(f"{suite}: GMapping {g.log} N 30 seed {seed}: {g.wall_s:.1f} s")
+                                else:
+                                    gmapping_runs.append(g)
+                                    progress(f"{suite}: GMapping {g.log} N 30 seed {seed}: {g.wall_s:.1f} s")
+                            if lama is not None and lama_runs is not None:
+                                modes = [("pf", lama_seed(seed))] + ([("slam2d", 0)] if seed == seeds[0] else [])
+                                try:
+                                    for mode, s in modes:
+                                        lr = run_lama(lama, gmapping_input(log, mcap, work), mode, s, work)
+                                        lama_runs.append(lr)
+                                        progress(f"{suite}: {_lama_progress(lr)}")
+                                except RuntimeError as e:  # e.g. not built and no LAMA_MIRROR to build it from
+                                    progress(f"{suite}: LaMa left out: {e}")
+                                    lama = None
     return runs
+
+
+def _lama_progress(r: LamaRun) -> str:
+    """A progress line for one LaMa run."""
+    seed = f" seed {r.seed} (effective {r.effective_seed})" if r.mode == "pf" else ""
+    err = "no relations" if r.trans_m is None else f"{r.trans_m:.3f} m, {r.rot_deg:.2f} deg"
+    return f"{MODE_NAMES[r.mode]} {r.log}{seed}: {r.wall_s:.1f} s, {err}, {r.processed}/{r.total} updates"

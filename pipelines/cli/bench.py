@@ -53,6 +53,15 @@ def bench(
             "when it is absent the speed table gives GMapping's reference times instead.",
         ),
     ] = Path("../shared/tools/gmapping"),
+    lama: Annotated[
+        Path,
+        typer.Option(
+            "--lama",
+            help="IRIS LaMa harness directory (freiburg, speed and robustness suites): LaMa PF-SLAM and Slam2D run "
+            "beside gslam; it builds LaMa once from LAMA_MIRROR (a git dir of iris-ua/iris_lama) when "
+            "/tmp/lama is absent. Without it (or when it cannot build or run) LaMa is left out.",
+        ),
+    ] = Path("../shared/tools/lama"),
     datasets: Annotated[
         Path, typer.Option("--datasets", help="The datasets directory (robustness and localise suites: the corpus).")
     ] = Path("../shared/datasets"),
@@ -64,10 +73,22 @@ def bench(
     ] = None,
 ) -> None:
     """Benchmarks into docs/BENCHMARKS.md: the paper's Tables 3 and 4 on the Car Park log (beside the paper's
-    figures), the Freiburg indoor logs (beside GMapping), and speed."""
+    figures), the Freiburg indoor logs (beside GMapping and IRIS LaMa), speed, and the robustness corpus."""
     from pipelines.bench.dispatch import BenchRequest, check_request, run_benchmark
 
-    request = BenchRequest(suite, quick, methods, seeds, data, freiburg, gmapping, datasets, logs, invocation(ctx))
+    request = BenchRequest(
+        suite=suite,
+        quick=quick,
+        methods=methods,
+        seeds=seeds,
+        data=data,
+        freiburg=freiburg,
+        gmapping=gmapping,
+        lama=lama,
+        datasets=datasets,
+        logs=logs,
+        command=invocation(ctx),
+    )
     check_request(request)
     if output is not None:
         check_outputs({"-o": output}, {"--data": data, "--freiburg": freiburg, "--datasets": datasets})

@@ -145,10 +145,11 @@ class InputLog:
             return OdomEvent(msg.t_s, np.array(_finite(v["x_m"], v["y_m"], v["theta_rad"])), tv)
         return GpsEvent(msg.t_s, np.array(_finite(v.pose.position.x, v.pose.position.y)))
 
-    def events(self) -> Iterator[Event]:
-        """All input events in log-time order. Malformed messages raise InputError naming their index."""
+    def events(self, scans_only: bool = False) -> Iterator[Event]:
+        """All input events in log-time order (only the scans: `scans_only`), each scan numbered in the
+        log's order. Malformed messages raise InputError naming their index."""
         k = 0
-        for ev in converted(self.mcap, INPUT_TOPICS, self._event):
+        for ev in converted(self.mcap, [ch.LASER] if scans_only else INPUT_TOPICS, self._event):
             if isinstance(ev, ScanEvent):
                 ev.index = k
                 k += 1

@@ -139,6 +139,7 @@ class SlamRunner:
         self.output_filter = self.filter if self.mount is None else BaseFrameView(self.filter, self.mount)
         """What the outputs read: the filter, seen from the base when the laser is mounted off it."""
         self.gps: list[tuple[float, float, float]] = []
+        self._turned: ScanGeometry | None = None  # the log's geometry turned by the mounting yaw
 
     def _initial_pose(self) -> tuple[np.ndarray | None, float | None]:
         if self.vehicle is None:
@@ -151,6 +152,34 @@ class SlamRunner:
             return fit_initial_heading(controls, gps, self.vehicle, self.cfg.init_heading_window_s), float(gps[0, 0])
         return np.zeros(3), float(controls[0, 0])
 
+    def scan_of(self, ev: ScanEvent) -> Scan:
+        """The filter's scan of an input scan: its geometry (the log's, or its own) with the laser's mounting
+        yaw added to every bearing, and the self-return range."""
+        g = ev.geometry if ev.geometry is not None else self.log.geometry
+        yaw = self.cfg.laser_yaw_offset_rad
+        if yaw:
+            if g is not self.log.geometry:
+                g = dataclasses.replace(g, start_angle_rad=g.start_angle_rad + yaw)
+            else:  # the log's own geometry: turned once
+                if self._turned is None:
+                    self._turned = dataclasses.replace(g, start_angle_rad=g.start_angle_rad + yaw)
+                g = self._turned
+        return Scan(ev.stamp_s, ev.ranges_m, g, self.min_range_m)
+
+    def scans_at(self, indices: list[int]) -> Iterator[Scan]:
+        """The filter's scans of the input's scans number `indices` (increasing), read again from the input
+        (the run's scans, for the placement of every scan once it is over)."""
+        wanted = iter(indices)
+        j = next(wanted, None)
+        for ev in self.log.events(scans_only=True):
+            if j is None:
+                return
+            if isinstance(ev, ScanEvent) and ev.index == j:
+                yield self.scan_of(ev)
+                j = next(wanted, None)
+        if j is not None:
+            raise InputError(f"{self.log.path}: the run needs scan {j} but the input ends before it")
+
     def steps(self) -> Iterator[Step]:
         fcfg = self.cfg.filter
         controls: list[list[float]] = []
@@ -158,17 +187,8 @@ class SlamRunner:
         t_prev = self.t_init_s
         odom_prev: np.ndarray | None = None
         odom_last: np.ndarray | None = None
-        yaw = self.cfg.laser_yaw_offset_rad
-
-        def turned(g: ScanGeometry) -> ScanGeometry:
-            """The scan's geometry with the laser's mounting yaw added to every bearing."""
-            return (
-                ScanGeometry(g.beam_count, g.start_angle_rad + yaw, g.angle_increment_rad, g.max_range_m) if yaw else g
-            )
 
         reversal = self.reversal_check = ReversalCheck() if self.cfg.odometry_reversal_check else None
-        log_geom = self.log.geometry
-        geom = turned(log_geom)
         for ev in self.log.events():
             if isinstance(ev, ControlEvent):
                 controls.append([ev.t_s, ev.speed_mps, ev.steering_rad])
@@ -227,8 +247,7 @@ class SlamRunner:
                                 return mount.laser_of(base)
 
                     odom_prev = odom_last
-                own = ev.geometry if ev.geometry is not None else log_geom
-                scan = Scan(ev.stamp_s, ev.ranges_m, geom if own is log_geom else turned(own), self.min_range_m)
+                scan = self.scan_of(ev)
                 t0 = time.perf_counter()
                 result = self.filter.step(scan, predict, ev.intensities)
                 step_ms = (time.perf_counter() - t0) * 1e3

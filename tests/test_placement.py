@@ -1,0 +1,178 @@
+"""Every scan placed by the final map (`gslam.placement`): a simulated room with known truth."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from gslam.placement import BETWEEN, NO_RETURNS, PLACED, MatchSettings, between_matched, place_scans
+from gslam.se2 import compose, inverse
+
+WALLS = [  # a 10 x 8 m room with a 2 x 1 m box in it: (x0, y0, x1, y1)
+    (0.0, 0.0, 10.0, 0.0),
+    (10.0, 0.0, 10.0, 8.0),
+    (10.0, 8.0, 0.0, 8.0),
+    (0.0, 8.0, 0.0, 0.0),
+    (6.0, 5.0, 8.0, 5.0),
+    (8.0, 5.0, 8.0, 6.0),
+    (8.0, 6.0, 6.0, 6.0),
+    (6.0, 6.0, 6.0, 5.0),
+]
+BEARINGS = np.radians(np.arange(-90.0, 90.5, 1.0))
+
+
+def room_map(spacing_m: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
+    pts = []
+    for x0, y0, x1, y1 in WALLS:
+        n = int(math.hypot(x1 - x0, y1 - y0) / spacing_m) + 1
+        t = np.linspace(0.0, 1.0, n)
+        pts.append(np.column_stack([x0 + t * (x1 - x0), y0 + t * (y1 - y0)]))
+    xy = np.vstack(pts)
+    return xy, np.ones(len(xy))
+
+
+def scan_from(pose: np.ndarray, bearings: np.ndarray = BEARINGS) -> np.ndarray:
+    """The end points (K, 2) in the sensor frame of the beams from `pose` to the nearest wall."""
+    ends = []
+    for b in bearings:
+        ux, uy = math.cos(pose[2] + b), math.sin(pose[2] + b)
+        best = math.inf
+        for x0, y0, x1, y1 in WALLS:
+            ex, ey = x1 - x0, y1 - y0
+            den = ux * ey - uy * ex
+            if abs(den) < 1e-12:
+                continue
+            wx, wy = x0 - pose[0], y0 - pose[1]
+            r = (wx * ey - wy * ex) / den
+            s = (wx * uy - wy * ux) / den
+            if r > 0 and 0.0 <= s <= 1.0:
+                best = min(best, r)
+        if best < 20.0:
+            ends.append((best * math.cos(b), best * math.sin(b)))
+    return np.asarray(ends, dtype=float).reshape(-1, 2)
+
+
+SETTINGS = MatchSettings(
+    cell_m=0.05,
+    kernel=1,
+    min_p=0.5,
+    margin_m=1.0,
+    step_xy_m=0.01,
+    step_phi_rad=0.01,
+    levels=2,
+    max_iterations=100,
+    score_sigma_m=0.05,
+    score_sigma_rad=0.0,
+    like_sigma_m=0.2,
+    miss_m=0.2,
+    line_pair_m=0.2,
+    polish_iterations=5,
+    climb_stride=2,
+    fine_stride=1,
+    fine_levels=0,
+)
+
+
+def truth_path(n: int = 60) -> np.ndarray:
+    """A curve through the room, 5 cm and about 1 degree a scan."""
+    t = np.arange(n)
+    return np.column_stack([2.0 + 0.05 * t, 2.0 + 1.2 * np.sin(t / 25.0), 0.3 * np.sin(t / 18.0)])
+
+
+def errors(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    d = compose(inverse(b), a)
+    return float(np.hypot(d[:, 0], d[:, 1]).max()), float(np.degrees(np.abs(d[:, 2])).max())
+
+
+def test_each_scan_is_matched_to_its_true_pose():
+    xy, p = room_map()
+    truth = truth_path()
+    rng = np.random.default_rng(0)
+    recorded = truth + rng.normal(0.0, [0.02, 0.02, math.radians(1.0)], truth.shape)
+    assert errors(recorded, truth)[0] > 0.03  # the test means something: the start is off
+    ends = [(scan_from(q), math.radians(1.0)) for q in truth]
+    placed = place_scans(xy, p, recorded, ends, SETTINGS)
+    assert placed.counts() == {"scans": 60, "matched": 60, "between_matched": 0, "no_returns": 0}
+    trans, rot = errors(placed.poses, truth)
+    assert trans < 0.005 and rot < 0.1
+
+
+def test_a_drifting_odometry_is_followed_from_the_scan_before():
+    """The filter's poses between updates are the odometry's: here the heading drifts 0.01 rad a scan.
+    From the recorded pose the later scans are too far off to be matched (they are placed between
+    neighbours, the only matched one being the first); from the scan before as placed, every one is."""
+    xy, p = room_map()
+    truth = truth_path()
+    steps = compose(inverse(truth[:-1]), truth[1:])
+    steps[:, 2] += 0.01
+    recorded = [truth[0]]
+    for s in steps:
+        recorded.append(compose(recorded[-1], s))
+    recorded = np.asarray(recorded)
+    ends = [(scan_from(q), 0.0) for q in truth]
+    anchored = np.zeros(len(truth), dtype=bool)
+    anchored[0] = True
+    chained = place_scans(xy, p, recorded, ends, SETTINGS, anchored=anchored)
+    assert chained.counts()["matched"] == len(truth)
+    assert errors(chained.poses, truth)[0] < 0.005
+    alone = place_scans(xy, p, recorded, ends, SETTINGS)
+    assert alone.counts()["between_matched"] > 20  # beyond max_turn_rad: not kept
+
+
+def test_scans_without_returns_are_counted_and_placed_between_neighbours():
+    xy, p = room_map()
+    truth = truth_path(20)
+    recorded = truth + [0.01, -0.01, 0.005]
+    ends = [(scan_from(q), 0.0) for q in truth]
+    ends[7] = (ends[7][0][:3], 0.0)
+    placed = place_scans(xy, p, recorded, ends, SETTINGS)
+    assert placed.how[7] == NO_RETURNS and placed.counts()["no_returns"] == 1
+    assert (placed.how[np.arange(20) != 7] == PLACED).all()
+    assert errors(placed.poses[6:9], truth[6:9])[0] < 0.01
+
+
+def test_between_matched_carries_a_common_correction_exactly():
+    truth = truth_path(30)
+    offset = np.array([0.3, -0.2, 0.05])
+    recorded = compose(inverse(offset), truth)  # recorded = C^-1 (+) truth: the same rigid error everywhere
+    matched = np.zeros(30, dtype=bool)
+    matched[[3, 12, 25]] = True
+    placed = recorded.copy()
+    placed[matched] = truth[matched]
+    out = between_matched(recorded, placed, matched)
+    trans, rot = errors(out, truth)
+    assert trans < 1e-9 and rot < 1e-7
+
+
+def test_between_matched_blends_along_the_path():
+    """Half way along the recorded path between two matched scans, half of each end's correction."""
+    recorded = np.column_stack([np.linspace(0.0, 1.0, 11), np.zeros(11), np.zeros(11)])
+    placed = recorded.copy()
+    placed[10, 1] = 0.1  # the far end is found 10 cm to the left
+    matched = np.zeros(11, dtype=bool)
+    matched[[0, 10]] = True
+    out = between_matched(recorded, placed, matched)
+    assert out[5, 1] == pytest.approx(0.05)
+    assert out[0, 1] == 0.0 and out[10, 1] == pytest.approx(0.1)
+
+
+def test_nothing_matched_leaves_the_trajectory_as_recorded():
+    recorded = truth_path(10)
+    out = between_matched(recorded, recorded + 1.0, np.zeros(10, dtype=bool))
+    np.testing.assert_array_equal(out, recorded)
+
+
+def test_placement_counts_every_scan_once():
+    xy, p = room_map()
+    truth = truth_path(12)
+    ends = [(scan_from(q), 0.0) for q in truth]
+    far = truth.copy()
+    far[5, :2] += 2.0  # two metres off: a jump, not a correction
+    placed = place_scans(xy, p, far, ends, SETTINGS)
+    assert placed.how[5] == BETWEEN
+    c = placed.counts()
+    assert c["matched"] + c["between_matched"] + c["no_returns"] == c["scans"] == 12
+    with pytest.raises(ValueError, match="recorded poses"):
+        place_scans(xy, p, truth[:5], ends, SETTINGS)
