@@ -243,6 +243,9 @@ class FilterConfig:
     """The placement's first climb step in heading."""
     place_levels: int = 2
     """Step halvings of the placement's climb (then match_polish_iterations Gauss-Newton steps)."""
+    place_climb_stride: int = 1
+    """The placement's climb scores every k-th return (1: all of them; the update's matcher takes every
+    match_climb_stride-th): one match a scan, so every return is worth its time (docs/CHOICES.md)."""
     place_min_hit_fraction: float = 0.5
     """A placement match is kept when at least this share of the scan's returns find the map near them."""
     place_max_shift_m: float = 0.5
@@ -397,6 +400,7 @@ _LIMITS: dict[str, tuple[float, float, bool]] = {
     "place_step_xy_m": (0, _CELL_M, False),
     "place_step_phi_rad": (0, _RADIANS, False),
     "place_levels": (0, 30, True),
+    "place_climb_stride": (1, 10_000, True),
     "place_min_hit_fraction": (0, 1, True),
     "place_max_shift_m": (0, _METRES, False),
     "place_max_turn_rad": (0, _RADIANS, False),

@@ -92,6 +92,8 @@ class GSlamFilter:
         self._heading_error_ratio2 = 1.0
         self._heading_noise = np.zeros(n)  # the model's heading noise drawn since the last update, unscaled
         self._updated: list[bool] = []  # per step: whether it updated the maps (its poses were matched)
+        self._motion: list[tuple[float, float, float]] = []
+        """Per step: the noise-free motion from the scan before (in its frame), whatever the filter did."""
         self.placed: tuple[np.ndarray, np.ndarray] | None = None
         """(times, poses) of the best particle's trajectory with every scan placed by its final map
         (`place_every_scan`); `best_trajectory()` gives it once set."""
@@ -116,10 +118,16 @@ class GSlamFilter:
             return self.placed
         return self.tree.trajectory(self.best_particle())
 
-    def place_every_scan(self, scans: Iterable[Scan], progress: Callable[[int, int], None] | None = None) -> Placement:
-        """Match every scan of the run (`scans`, the ones given to `step`, in order) against the best
-        particle's final map (`gslam.placement`); `best_trajectory()` then gives the placed poses. The
-        maps and the particles are not changed."""
+    def place_every_scan(
+        self,
+        scans: Callable[[int, int], Iterable[Scan]],
+        workers: int = 1,
+        progress: Callable[[int, int], None] | None = None,
+    ) -> Placement:
+        """Match every scan of the run against the best particle's final map (`gslam.placement`);
+        `best_trajectory()` then gives the placed poses. `scans(a, b)`: the run's scans a to b - 1 (the ones
+        given to `step`, in order); `workers` threads place parts of the run at once. The maps and the
+        particles are not changed."""
         cfg = self.cfg
         best = self.best_particle()
         times, recorded = self.tree.trajectory(best)
@@ -139,7 +147,7 @@ class GSlamFilter:
             miss_m=cfg.weight_miss_m,
             line_pair_m=cfg.match_line_pair_m,
             polish_iterations=cfg.match_polish_iterations,
-            climb_stride=cfg.match_climb_stride,
+            climb_stride=cfg.place_climb_stride,
             fine_stride=cfg.match_fine_stride,
             fine_levels=min(cfg.match_fine_levels, cfg.place_levels + 1),
         )
@@ -149,15 +157,15 @@ class GSlamFilter:
             max_turn_rad=cfg.place_max_turn_rad,
         )
 
-        def ends() -> Iterable[tuple[np.ndarray, float]]:
-            for scan in scans:
+        def ends(a: int, b: int) -> Iterable[tuple[np.ndarray, float]]:
+            for scan in scans(a, b):
                 scan = self._as_observed(scan)
-                _, z, b = scan.return_polar()
-                yield np.column_stack([z * np.cos(b), z * np.sin(b)]), scan.geometry.angle_increment_rad
+                _, z, bearing = scan.return_polar()
+                yield np.column_stack([z * np.cos(bearing), z * np.sin(bearing)]), scan.geometry.angle_increment_rad
 
-        placement = place_scans(
-            xy, p, recorded, ends(), settings, limits, anchored=np.asarray(self._updated), progress=progress
-        )
+        anchored = np.asarray(self._updated, dtype=bool)
+        motion = np.asarray(self._motion, dtype=float).reshape(-1, 3)
+        placement = place_scans(xy, p, recorded, ends, settings, limits, anchored, workers, progress, motion)
         self.placed = (times, placement.poses)
         return placement
 
@@ -209,6 +217,10 @@ class GSlamFilter:
             x1, y1, phi1 = self._filled[0].tolist()
             self._travel_m += float(np.hypot(x1 - x0, y1 - y0))
             self._turn_rad += abs(wrap_angle_scalar(phi1 - phi0))
+            c, s = math.cos(phi0), math.sin(phi0)
+            self._motion.append((c * (x1 - x0) + s * (y1 - y0), -s * (x1 - x0) + c * (y1 - y0), phi1 - phi0))
+        else:
+            self._motion.append((0.0, 0.0, 0.0))
         if not self._due():
             recorded = self._filled if cfg.fill_skipped == "odometry" else self.poses
             self.tree.record(scan.t_s, recorded)

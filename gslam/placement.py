@@ -21,7 +21,9 @@ of the tiles its window covers, not the whole map.
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -126,43 +128,125 @@ class MapTiles:
         return self.xy[idx], self.p[idx]
 
 
+ScanSource = Callable[[int, int], Iterable[tuple[np.ndarray, float]]]
+"""scans(a, b): the scans a to b - 1 of the run, each as its returns' end points (K, 2) in the sensor frame
+and the angle between its beams."""
+
+
 def place_scans(
     map_xy: np.ndarray,
     map_p: np.ndarray,
     recorded: np.ndarray,
-    ends: Iterable[tuple[np.ndarray, float]],
+    scans: ScanSource,
     match: MatchSettings,
     limits: PlacementLimits = PlacementLimits(),
     anchored: np.ndarray | None = None,
+    workers: int = 1,
     progress: Callable[[int, int], None] | None = None,
+    motion: np.ndarray | None = None,
 ) -> Placement:
     """Match each scan against the map (`map_xy`, `map_p`) and return the placed trajectory; the scans
-    whose match is not kept are placed between matched neighbours. `ends`: per scan, in the order of
-    `recorded` (T, 3, the poses the filter recorded), its returns' end points (K, 2) in the sensor frame
-    and the angle between its beams (the score's width grows with range by it when
-    match.score_sigma_rad is None, as in the filter).
+    whose match is not kept are placed between matched neighbours. `scans(a, b)` gives the scans a to
+    b - 1 in the order of `recorded` (T, 3, the poses the filter recorded); the angle between a scan's
+    beams widens the score with range when match.score_sigma_rad is None, as in the filter.
+
     `anchored` (T,) bool: the scans whose recorded pose the filter matched (its updates); every other scan
-    starts from the pose before it as placed, moved by the recorded motion between the two (the
+    starts from the pose before it as placed, moved by the motion between the two (the
     odometry's error over one scan, not over everything since the last update). None: every scan starts
-    from its recorded pose. `progress(done, total)` is called every 256 scans."""
+    from its recorded pose. `motion` (T, 3): the noise-free motion from each scan to the next (row k: from
+    scan k - 1 to k, in the frame of k - 1), which the recorded poses break at the anchored scans (there
+    the filter's correction is in them); None: the recorded poses' differences. `workers` > 1: the scans
+    are cut at anchored scans into that many runs, placed at once (threads; the compiled matcher runs
+    without the interpreter's lock), each reading its own scans: the same result as one worker.
+    `progress(done, total)` is called every 256 scans or so."""
     recorded = np.asarray(recorded, dtype=float).reshape(-1, 3)
     n = len(recorded)
+    path = recorded if motion is None else dead_reckoned(recorded[0], motion)
     poses = recorded.copy()
     how = np.full(n, BETWEEN, dtype=np.int8)
     tiles = MapTiles(map_xy, map_p, match.min_p)
+    cuts = _cuts(n, anchored, workers)
+    done = [0] * (len(cuts) - 1)
+    lock = threading.Lock()
+
+    def report(part: int, k: int) -> None:
+        if progress is not None:
+            with lock:
+                done[part] = k
+                progress(sum(done), n)
+
+    def run(part: int) -> None:
+        a, b = cuts[part], cuts[part + 1]
+        _place_run(tiles, recorded, path, poses, how, a, b, scans(a, b), match, limits, anchored,
+                   lambda k: report(part, k))  # fmt: skip
+
+    if len(cuts) == 2:
+        run(0)
+    else:
+        with ThreadPoolExecutor(len(cuts) - 1) as pool:
+            for f in [pool.submit(run, part) for part in range(len(cuts) - 1)]:
+                f.result()
+    if progress is not None:
+        progress(n, n)
+    return Placement(between_matched(path, poses, how == PLACED), how)
+
+
+def _cuts(n: int, anchored: np.ndarray | None, workers: int) -> list[int]:
+    """Where the runs of `place_scans`'s workers begin (and n): at anchored scans (any scan when none are
+    given) near equal shares of the scans; fewer runs when there are too few anchors."""
+    cuts = [0]
+    for j in range(1, max(1, int(workers))):
+        target = n * j // workers
+        if anchored is None:
+            at = target
+        else:
+            after = np.flatnonzero(np.asarray(anchored[target:], dtype=bool))
+            at = target + int(after[0]) if len(after) else n
+        if cuts[-1] < at < n:
+            cuts.append(at)
+    return cuts + [n]
+
+
+def _moved(placed: np.ndarray, before: np.ndarray, after: np.ndarray) -> tuple[float, float, float]:
+    """placed (+) (before^-1 (+) after): the pose `placed` moved by the recorded motion from `before` to
+    `after` (scalar arithmetic: once a scan, where numpy's per-call cost would dominate)."""
+    c0, s0 = math.cos(before[2]), math.sin(before[2])
+    dx, dy = after[0] - before[0], after[1] - before[1]
+    lx, ly = c0 * dx + s0 * dy, -s0 * dx + c0 * dy
+    c, s = math.cos(placed[2]), math.sin(placed[2])
+    phi = placed[2] + (after[2] - before[2])
+    return placed[0] + c * lx - s * ly, placed[1] + s * lx + c * ly, (phi + math.pi) % (2 * math.pi) - math.pi
+
+
+def _place_run(
+    tiles: MapTiles,
+    recorded: np.ndarray,
+    path: np.ndarray,
+    poses: np.ndarray,
+    how: np.ndarray,
+    a: int,
+    b: int,
+    scans: Iterable[tuple[np.ndarray, float]],
+    match: MatchSettings,
+    limits: PlacementLimits,
+    anchored: np.ndarray | None,
+    report: Callable[[int], None],
+) -> None:
+    """Place the scans a to b - 1 (`poses`, `how` written in place); scan a and the anchored ones start from
+    their recorded pose, the others from the scan before as placed, moved as `path` moves."""
     workspace = MatchWorkspace(1)
     lo = np.zeros(1, dtype=np.int64)
-    k = -1
-    for k, (pts, increment_rad) in enumerate(ends):
-        if k >= n:
-            raise ValueError(f"more scans than recorded poses ({n})")
-        if progress is not None and k % 256 == 0:
-            progress(k, n)
+    k = a - 1
+    for k, (pts, increment_rad) in enumerate(scans, start=a):
+        if k >= b:
+            raise ValueError(f"more scans than recorded poses ({len(recorded)})")
+        if (k - a) % 256 == 0:
+            report(k - a)
         pts = np.asarray(pts, dtype=float).reshape(-1, 2)
-        if anchored is None or anchored[k] or k == 0:
-            start = recorded[k : k + 1]
+        if anchored is None or anchored[k] or k == a:
+            start = recorded[k : k + 1].copy()
         else:
-            start = compose(poses[k - 1], compose(inverse(recorded[k - 1]), recorded[k]))[None, :]
+            start = np.array([_moved(poses[k - 1], path[k - 1], path[k])])
         poses[k] = start[0]  # the next scan's start when this one is not matched
         if len(pts) < limits.min_returns:
             how[k] = NO_RETURNS
@@ -171,12 +255,11 @@ def place_scans(
         xy, p = tiles.inside(x0, y0, x1, y1)
         if len(xy) == 0:
             continue
-        hi = np.array([len(xy)], dtype=np.int64)
         matched, _, _, hits = match_and_weigh(
             xy,
             p,
             lo,
-            hi,
+            np.array([len(xy)], dtype=np.int64),
             start,
             pts,
             cell_m=match.cell_m,
@@ -201,26 +284,36 @@ def place_scans(
         q = matched[0]
         shift = math.hypot(q[0] - start[0, 0], q[1] - start[0, 1])
         turn = abs(float(wrap_angle(q[2] - start[0, 2])))
-        if (
-            hits[0] >= limits.min_hit_fraction * len(pts)
-            and shift <= limits.max_shift_m
-            and turn <= limits.max_turn_rad
-        ):
+        explained = hits[0] >= limits.min_hit_fraction * len(pts)
+        if explained and shift <= limits.max_shift_m and turn <= limits.max_turn_rad:
             poses[k] = q
             how[k] = PLACED
-    if k + 1 != n:
-        raise ValueError(f"{k + 1} scans for {n} recorded poses")
-    if progress is not None:
-        progress(n, n)
-    return Placement(between_matched(recorded, poses, how == PLACED), how)
+    if k + 1 != b:
+        raise ValueError(f"{k + 1 - a} scans for the {b - a} recorded poses {a} to {b - 1}")
+
+
+def dead_reckoned(start: np.ndarray, motion: np.ndarray) -> np.ndarray:
+    """The path (T, 3) from `start` moved by each row of `motion` (T, 3; row 0 ignored) in turn."""
+    motion = np.asarray(motion, dtype=float).reshape(-1, 3)
+    out = np.empty_like(motion)
+    if len(out) == 0:
+        return out
+    x, y, phi = (float(v) for v in start)
+    out[0] = x, y, phi
+    for k in range(1, len(motion)):
+        mx, my, mphi = motion[k]
+        c, s = math.cos(phi), math.sin(phi)
+        x, y, phi = x + c * mx - s * my, y + s * mx + c * my, (phi + mphi + math.pi) % (2 * math.pi) - math.pi
+        out[k] = x, y, phi
+    return out
 
 
 def between_matched(recorded: np.ndarray, placed: np.ndarray, matched: np.ndarray) -> np.ndarray:
     """The poses of the scans not matched, placed between their matched neighbours a (before) and b
-    (after): the recorded motion from a, laid from a's matched pose, and the recorded motion back from b,
-    laid from b's matched pose, blended by the share of the recorded path length from a to b (or of the
-    scans, where it does not move); before the first matched scan only b's, after the last only a's. The
-    matched scans keep `placed`; nothing matched: `recorded`."""
+    (after): the motion of the path `recorded` (continuous: see `place_scans`'s `motion`) from a, laid from
+    a's matched pose, and back from b, laid from b's matched pose, blended by the share of the path length
+    from a to b (or of the scans, where it does not move); before the first matched scan only b's, after
+    the last only a's. The matched scans keep `placed`; nothing matched: `recorded`."""
     recorded = np.asarray(recorded, dtype=float)
     out = np.asarray(placed, dtype=float).copy()
     idx = np.flatnonzero(matched)

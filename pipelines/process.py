@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import os
 import sys
 import time
 from collections.abc import Callable
@@ -304,6 +305,18 @@ def _result_metadata(run: _OpenRun, times: _StepTimes, summary: ProcessSummary) 
     }
 
 
+def placement_workers(threads: int | None) -> int:
+    """Threads for the placement of every scan: the run's (every core by default); one where numba's
+    threading layer cannot take two compiled calls at once (its "workqueue" layer aborts the process)."""
+    import numba
+
+    try:
+        layer = numba.threading_layer()
+    except ValueError:  # no parallel function has run yet
+        return 1
+    return max(1, threads or os.cpu_count() or 1) if layer in ("omp", "tbb") else 1
+
+
 def _place_every_scan(run: _OpenRun, times: _StepTimes, notice: Callable[[str], None] | None) -> dict | None:
     """Every scan of the final trajectory matched against the final map (`GSlamFilter.place_every_scan`,
     `place_every_scan` on): how many were matched, placed between matched neighbours, or had no returns,
@@ -317,7 +330,10 @@ def _place_every_scan(run: _OpenRun, times: _StepTimes, notice: Callable[[str], 
     if notice is not None:
         notice(f"placing every scan in the final map ({len(times.scan_indices)} scans)")
     t0 = time.perf_counter()
-    counts = flt.place_every_scan(run.runner.scans_at(times.scan_indices)).counts()
+    indices = times.scan_indices
+    workers = placement_workers(run.cfg.threads)
+    counts = flt.place_every_scan(lambda a, b: run.runner.scans_at(indices[a:b]), workers).counts()
+    counts["workers"] = workers
     counts["seconds"] = round(time.perf_counter() - t0, 3)
     return counts
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -75,6 +76,11 @@ SETTINGS = MatchSettings(
 )
 
 
+def of(ends: list) -> Callable[[int, int], list]:
+    """The scan source `place_scans` reads: scans a to b - 1."""
+    return lambda a, b: ends[a:b]
+
+
 def truth_path(n: int = 60) -> np.ndarray:
     """A curve through the room, 5 cm and about 1 degree a scan."""
     t = np.arange(n)
@@ -93,7 +99,7 @@ def test_each_scan_is_matched_to_its_true_pose():
     recorded = truth + rng.normal(0.0, [0.02, 0.02, math.radians(1.0)], truth.shape)
     assert errors(recorded, truth)[0] > 0.03  # the test means something: the start is off
     ends = [(scan_from(q), math.radians(1.0)) for q in truth]
-    placed = place_scans(xy, p, recorded, ends, SETTINGS)
+    placed = place_scans(xy, p, recorded, of(ends), SETTINGS)
     assert placed.counts() == {"scans": 60, "matched": 60, "between_matched": 0, "no_returns": 0}
     trans, rot = errors(placed.poses, truth)
     assert trans < 0.005 and rot < 0.1
@@ -114,10 +120,10 @@ def test_a_drifting_odometry_is_followed_from_the_scan_before():
     ends = [(scan_from(q), 0.0) for q in truth]
     anchored = np.zeros(len(truth), dtype=bool)
     anchored[0] = True
-    chained = place_scans(xy, p, recorded, ends, SETTINGS, anchored=anchored)
+    chained = place_scans(xy, p, recorded, of(ends), SETTINGS, anchored=anchored)
     assert chained.counts()["matched"] == len(truth)
     assert errors(chained.poses, truth)[0] < 0.005
-    alone = place_scans(xy, p, recorded, ends, SETTINGS)
+    alone = place_scans(xy, p, recorded, of(ends), SETTINGS)
     assert alone.counts()["between_matched"] > 20  # beyond max_turn_rad: not kept
 
 
@@ -127,7 +133,7 @@ def test_scans_without_returns_are_counted_and_placed_between_neighbours():
     recorded = truth + [0.01, -0.01, 0.005]
     ends = [(scan_from(q), 0.0) for q in truth]
     ends[7] = (ends[7][0][:3], 0.0)
-    placed = place_scans(xy, p, recorded, ends, SETTINGS)
+    placed = place_scans(xy, p, recorded, of(ends), SETTINGS)
     assert placed.how[7] == NO_RETURNS and placed.counts()["no_returns"] == 1
     assert (placed.how[np.arange(20) != 7] == PLACED).all()
     assert errors(placed.poses[6:9], truth[6:9])[0] < 0.01
@@ -170,9 +176,51 @@ def test_placement_counts_every_scan_once():
     ends = [(scan_from(q), 0.0) for q in truth]
     far = truth.copy()
     far[5, :2] += 2.0  # two metres off: a jump, not a correction
-    placed = place_scans(xy, p, far, ends, SETTINGS)
+    placed = place_scans(xy, p, far, of(ends), SETTINGS)
     assert placed.how[5] == BETWEEN
     c = placed.counts()
     assert c["matched"] + c["between_matched"] + c["no_returns"] == c["scans"] == 12
     with pytest.raises(ValueError, match="recorded poses"):
-        place_scans(xy, p, truth[:5], ends, SETTINGS)
+        place_scans(xy, p, truth[:5], lambda a, b: ends, SETTINGS)
+
+
+def test_workers_place_parts_of_the_run_at_once_with_the_same_result():
+    """Cut at anchored scans, where a scan starts from its recorded pose either way: two or three workers
+    give the one worker's poses exactly, whatever the order their threads run in."""
+    xy, p = room_map()
+    truth = truth_path(90)
+    steps = compose(inverse(truth[:-1]), truth[1:])
+    steps[:, 2] += 0.004
+    recorded = [truth[0]]
+    for k, s in enumerate(steps, start=1):
+        recorded.append(truth[k] if k % 20 == 0 else compose(recorded[-1], s))  # an update every 20 scans
+    recorded = np.asarray(recorded)
+    anchored = np.arange(90) % 20 == 0
+    ends = [(scan_from(q), 0.0) for q in truth]
+    read = []
+
+    def source(a, b):
+        read.append((a, b))
+        return ends[a:b]
+
+    one = place_scans(xy, p, recorded, source, SETTINGS, anchored=anchored)
+    assert read == [(0, 90)]
+    for workers, cuts in ((2, [(0, 60), (60, 90)]), (3, [(0, 40), (40, 60), (60, 90)])):
+        read.clear()
+        many = place_scans(xy, p, recorded, source, SETTINGS, anchored=anchored, workers=workers)
+        assert sorted(read) == cuts
+        np.testing.assert_array_equal(many.poses, one.poses)
+        np.testing.assert_array_equal(many.how, one.how)
+    assert errors(one.poses, truth)[0] < 0.005
+
+
+def test_the_scalar_motion_is_the_composition():
+    from gslam.placement import _moved
+
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        placed, before, after = rng.normal(0.0, 3.0, (3, 3))
+        want = compose(placed, compose(inverse(before), after))
+        got = np.array(_moved(placed, before, after))
+        assert np.allclose(got[:2], want[:2], atol=1e-12)
+        assert abs(np.remainder(got[2] - want[2] + np.pi, 2 * np.pi) - np.pi) < 1e-12

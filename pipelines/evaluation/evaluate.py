@@ -243,6 +243,13 @@ def evaluate_result(result: Path, reference: Path | None = None) -> dict[str, An
             out[k] = rel.get(k)
         notes.append(relations_note(len(relations), rel["relations_used"], len(res.t_s)))
     r = meta["result"]
+    placement = r.get("placement")
+    if isinstance(placement, dict) and placement.get("scans"):
+        notes.append(
+            f"every scan placed by the final map: {placement.get('matched')} of {placement['scans']} matched, "
+            f"{placement.get('between_matched')} placed between matched neighbours, "
+            f"{placement.get('no_returns')} without returns"
+        )
     out["ms_per_update_mean"] = r.get("ms_per_update_mean")
     out["ms_per_step_median"] = r.get("ms_per_step_filter_median")
     out["real_time_factor"] = r.get("real_time_factor")
