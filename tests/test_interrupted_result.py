@@ -68,6 +68,7 @@ def test_a_result_interrupted_at_a_random_moment_holds_the_steps_its_message_say
         mid_run.append(steps)
         src = McapInput(out)
         assert src.metadata()["result"]["steps"] == steps and src.metadata()["result"]["interrupted"] is True
+        assert src.metadata()["result"]["placement"] is None  # a run cut short keeps the filter's poses
         topics = [m.topic for m in src.messages([ch.SLAM_POSE, ch.SLAM_STATS])]
         poses, stats = topics.count(ch.SLAM_POSE), topics.count(ch.SLAM_STATS)
         assert (poses, stats) == (steps, steps), f"said {steps} steps, holds {poses} poses, {stats} step records"

@@ -7,6 +7,7 @@ import json
 
 from typer.testing import CliRunner
 
+from mcaplog.mcapio import McapInput
 from pipelines.cli.app import app
 
 PARTICLES = 30
@@ -29,3 +30,6 @@ def test_mit_csail_relations_error_is_near_gmapping(mit_mcap, tmp_path):
     assert metrics["relations_rot_deg"] < 1.0, metrics
     placement = [n for n in metrics["notes"] if n.startswith("every scan placed by the final map")]
     assert placement, metrics["notes"]
+    counts = McapInput(out).metadata()["result"]["placement"]
+    assert counts["matched"] + counts["between_matched"] + counts["no_returns"] == counts["scans"] == 1988
+    assert counts["matched"] > 0.98 * counts["scans"], counts  # measured: 4 to 18 left to their neighbours

@@ -224,3 +224,22 @@ def test_the_scalar_motion_is_the_composition():
         got = np.array(_moved(placed, before, after))
         assert np.allclose(got[:2], want[:2], atol=1e-12)
         assert abs(np.remainder(got[2] - want[2] + np.pi, 2 * np.pi) - np.pi) < 1e-12
+
+
+def test_scans_between_neighbours_follow_the_motion_not_the_filters_jump():
+    """The recorded poses jump at an update (the filter's correction is in them): a scan left to its
+    neighbours just before the update must follow the motion, not take the jump as motion."""
+    xy, p = room_map()
+    truth = truth_path(30)
+    motion = np.vstack([np.zeros(3), compose(inverse(truth[:-1]), truth[1:])])
+    recorded = truth.copy()
+    recorded[:20] = truth[:20] + [0.0, 0.0, 0.05]  # the heading 0.05 rad off before it
+    recorded[20:] = truth[20:]  # the update at scan 20 corrected it
+    anchored = np.zeros(30, dtype=bool)
+    anchored[[0, 20]] = True
+    ends = [(scan_from(q), 0.0) for q in truth]
+    ends[19] = (ends[19][0][:3], 0.0)  # no returns: placed between scans 18 and 20
+    placed = place_scans(xy, p, recorded, of(ends), SETTINGS, anchored=anchored, motion=motion)
+    assert placed.how[19] == NO_RETURNS
+    trans, rot = errors(placed.poses[19:20], truth[19:20])
+    assert trans < 0.005 and rot < 0.2  # along the recorded poses: 1.4 deg
