@@ -18,6 +18,7 @@ from gslam.pointmap import PointMap, distinct_maps
 from gslam.resampling import continue_from_parents, effective_sample_size, reweight_and_resample
 from gslam.scan import Scan
 from gslam.scanmatch import MatchWorkspace, match_and_weigh
+from gslam.se2 import between_scalar
 
 Predictor = Callable[[np.ndarray, np.random.Generator | None], np.ndarray]
 """Step 1's motion model: (poses (N,3), rng) -> sampled poses (N,3); rng None: the noise-free motion."""
@@ -212,13 +213,12 @@ class GSlamFilter:
                 self.poses = sampled
             else:
                 self.poses = predict(self.poses, self.rng)
-            x0, y0, phi0 = self._filled[0].tolist()
+            before = self._filled[0].tolist()
             self._filled = predict(self._filled, None)
-            x1, y1, phi1 = self._filled[0].tolist()
-            self._travel_m += float(np.hypot(x1 - x0, y1 - y0))
-            self._turn_rad += abs(wrap_angle_scalar(phi1 - phi0))
-            c, s = math.cos(phi0), math.sin(phi0)
-            self._motion.append((c * (x1 - x0) + s * (y1 - y0), -s * (x1 - x0) + c * (y1 - y0), phi1 - phi0))
+            after = self._filled[0].tolist()
+            self._travel_m += float(np.hypot(after[0] - before[0], after[1] - before[1]))
+            self._turn_rad += abs(wrap_angle_scalar(after[2] - before[2]))
+            self._motion.append(between_scalar(before, after))
         else:
             self._motion.append((0.0, 0.0, 0.0))
         if not self._due():

@@ -31,7 +31,7 @@ import numpy as np
 from gslam.motion import wrap_angle
 from gslam.scan import window_boxes
 from gslam.scanmatch import MatchWorkspace, match_and_weigh
-from gslam.se2 import compose, inverse
+from gslam.se2 import between_scalar, compose, compose_scalar, inverse
 
 PLACED, BETWEEN, NO_RETURNS = 0, 1, 2
 """How a scan's pose was set: matched against the map; between matched neighbours (its match was not
@@ -207,17 +207,6 @@ def _cuts(n: int, anchored: np.ndarray | None, workers: int) -> list[int]:
     return cuts + [n]
 
 
-def _moved(placed: np.ndarray, before: np.ndarray, after: np.ndarray) -> tuple[float, float, float]:
-    """placed (+) (before^-1 (+) after): the pose `placed` moved by the recorded motion from `before` to
-    `after` (scalar arithmetic: once a scan, where numpy's per-call cost would dominate)."""
-    c0, s0 = math.cos(before[2]), math.sin(before[2])
-    dx, dy = after[0] - before[0], after[1] - before[1]
-    lx, ly = c0 * dx + s0 * dy, -s0 * dx + c0 * dy
-    c, s = math.cos(placed[2]), math.sin(placed[2])
-    phi = placed[2] + (after[2] - before[2])
-    return placed[0] + c * lx - s * ly, placed[1] + s * lx + c * ly, (phi + math.pi) % (2 * math.pi) - math.pi
-
-
 def _place_run(
     tiles: MapTiles,
     recorded: np.ndarray,
@@ -246,7 +235,7 @@ def _place_run(
         if anchored is None or anchored[k] or k == a:
             start = recorded[k : k + 1].copy()
         else:
-            start = np.array([_moved(poses[k - 1], path[k - 1], path[k])])
+            start = np.array([compose_scalar(poses[k - 1], between_scalar(path[k - 1], path[k]))])
         poses[k] = start[0]  # the next scan's start when this one is not matched
         if len(pts) < limits.min_returns:
             how[k] = NO_RETURNS
@@ -298,13 +287,11 @@ def dead_reckoned(start: np.ndarray, motion: np.ndarray) -> np.ndarray:
     out = np.empty_like(motion)
     if len(out) == 0:
         return out
-    x, y, phi = (float(v) for v in start)
-    out[0] = x, y, phi
+    pose = tuple(float(v) for v in start)
+    out[0] = pose
     for k in range(1, len(motion)):
-        mx, my, mphi = motion[k]
-        c, s = math.cos(phi), math.sin(phi)
-        x, y, phi = x + c * mx - s * my, y + s * mx + c * my, (phi + mphi + math.pi) % (2 * math.pi) - math.pi
-        out[k] = x, y, phi
+        pose = compose_scalar(pose, motion[k])
+        out[k] = pose
     return out
 
 

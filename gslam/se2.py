@@ -41,3 +41,18 @@ def compose_inverse(a: tuple[float, float, float], b: tuple[float, float, float]
     ix, iy = -cb * b[0] - sb * b[1], sb * b[0] - cb * b[1]
     phi = (a[2] - b[2] + math.pi) % (2 * math.pi) - math.pi
     return a[0] + ca * ix - sa * iy, a[1] + sa * ix + ca * iy, phi
+
+
+def between_scalar(a: tuple[float, float, float], b: tuple[float, float, float]) -> tuple[float, float, float]:
+    """a^-1 (+) b for one pose each, in Python floats: the motion from a to b in a's frame; the heading
+    change b - a is not wrapped (`compose_scalar` wraps the heading it gives)."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    return c * dx + s * dy, -s * dx + c * dy, b[2] - a[2]
+
+
+def compose_scalar(a: tuple[float, float, float], b: tuple[float, float, float]) -> tuple[float, float, float]:
+    """a (+) b for one pose each, in Python floats (`compose` without numpy's per-call cost)."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    phi = (a[2] + b[2] + math.pi) % (2 * math.pi) - math.pi
+    return a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], phi

@@ -215,13 +215,13 @@ def test_workers_place_parts_of_the_run_at_once_with_the_same_result():
 
 
 def test_the_scalar_motion_is_the_composition():
-    from gslam.placement import _moved
+    from gslam.se2 import between_scalar, compose_scalar
 
     rng = np.random.default_rng(3)
     for _ in range(20):
         placed, before, after = rng.normal(0.0, 3.0, (3, 3))
         want = compose(placed, compose(inverse(before), after))
-        got = np.array(_moved(placed, before, after))
+        got = np.array(compose_scalar(placed, between_scalar(before, after)))
         assert np.allclose(got[:2], want[:2], atol=1e-12)
         assert abs(np.remainder(got[2] - want[2] + np.pi, 2 * np.pi) - np.pi) < 1e-12
 
