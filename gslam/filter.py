@@ -13,11 +13,11 @@ from gslam import mapupdate
 from gslam.ancestry import AncestryTree
 from gslam.config import FilterConfig
 from gslam.motion import wrap_angle, wrap_angle_scalar
-from gslam.placement import MatchSettings, Placement, PlacementLimits, place_scans
+from gslam.placement import Placement, PlacementLimits, place_scans
 from gslam.pointmap import PointMap, distinct_maps
 from gslam.resampling import continue_from_parents, effective_sample_size, reweight_and_resample
 from gslam.scan import Scan
-from gslam.scanmatch import MatchWorkspace, match_and_weigh
+from gslam.scanmatch import MatchSettings, MatchWorkspace, match_and_weigh
 from gslam.se2 import between_scalar
 
 Predictor = Callable[[np.ndarray, np.random.Generator | None], np.ndarray]
@@ -133,23 +133,12 @@ class GSlamFilter:
         best = self.best_particle()
         times, recorded = self.tree.trajectory(best)
         xy, p = self.map_points(best)
-        settings = MatchSettings(
-            cell_m=cfg.match_cell_m,
-            kernel=cfg.match_kernel,
-            min_p=cfg.match_min_p,
-            margin_m=cfg.match_window_margin_m,
+        settings = replace(
+            MatchSettings.from_config(cfg),
             step_xy_m=cfg.place_step_xy_m,
             step_phi_rad=cfg.place_step_phi_rad,
             levels=cfg.place_levels,
-            max_iterations=cfg.match_max_iterations,
-            score_sigma_m=cfg.match_sigma_m,
-            score_sigma_rad=cfg.match_sigma_rad,
-            like_sigma_m=cfg.weight_sigma_m,
-            miss_m=cfg.weight_miss_m,
-            line_pair_m=cfg.match_line_pair_m,
-            polish_iterations=cfg.match_polish_iterations,
             climb_stride=cfg.place_climb_stride,
-            fine_stride=cfg.match_fine_stride,
             fine_levels=min(cfg.match_fine_levels, cfg.place_levels + 1),
         )
         limits = PlacementLimits(
@@ -161,8 +150,7 @@ class GSlamFilter:
         def ends(a: int, b: int) -> Iterable[tuple[np.ndarray, float]]:
             for scan in scans(a, b):
                 scan = self._as_observed(scan)
-                _, z, bearing = scan.return_polar()
-                yield np.column_stack([z * np.cos(bearing), z * np.sin(bearing)]), scan.geometry.angle_increment_rad
+                yield _end_points(scan), scan.geometry.angle_increment_rad
 
         anchored = np.asarray(self._updated, dtype=bool)
         motion = np.asarray(self._motion, dtype=float).reshape(-1, 3)
@@ -309,11 +297,12 @@ class GSlamFilter:
         cfg, n = self.cfg, self.cfg.particles
         if cfg.proposal != "scan_match" and cfg.weighting != "matched_field":
             return 0, np.zeros(n)
-        _, z, b = scan.return_polar()
-        sel = slice(None, None, cfg.weight_beam_stride)
-        pts = np.column_stack([z[sel] * np.cos(b[sel]), z[sel] * np.sin(b[sel])])
+        pts = _end_points(scan, cfg.weight_beam_stride)
         xy, p, lo, hi = layout
         climb = cfg.proposal == "scan_match"
+        args = MatchSettings.from_config(cfg).arguments(scan.geometry.angle_increment_rad)
+        if not climb:
+            args["max_iterations"] = 0  # weigh at the motion samples
         poses, score, log_like, hits = match_and_weigh(
             xy,
             p,
@@ -321,21 +310,6 @@ class GSlamFilter:
             hi,
             self.poses,
             pts,
-            cell_m=cfg.match_cell_m,
-            kernel=cfg.match_kernel,
-            min_p=cfg.match_min_p,
-            margin_m=cfg.match_window_margin_m,
-            step_xy_m=cfg.match_step_xy_m,
-            step_phi_rad=cfg.match_step_phi_rad,
-            levels=cfg.match_levels,
-            max_iterations=cfg.match_max_iterations if climb else 0,
-            score_sigma_m=cfg.match_sigma_m,
-            score_sigma_rad=(
-                cfg.match_sigma_rad if cfg.match_sigma_rad is not None else scan.geometry.angle_increment_rad
-            ),
-            like_sigma_m=cfg.weight_sigma_m,
-            miss_m=cfg.weight_miss_m,
-            line_pair_m=cfg.match_line_pair_m,
             workspace=self._workspace,
             coarse_factor=cfg.match_coarse_factor,
             coarse_levels=cfg.match_coarse_levels,
@@ -344,10 +318,7 @@ class GSlamFilter:
             coarse_depth=cfg.match_coarse_depth,
             coarse_gate=cfg.match_coarse_gate,
             coarse_reference=self._fit_reference,
-            polish_iterations=cfg.match_polish_iterations,
-            climb_stride=cfg.match_climb_stride,
-            fine_stride=cfg.match_fine_stride,
-            fine_levels=cfg.match_fine_levels,
+            **args,
         )
         if not climb:
             return 0, log_like
@@ -362,3 +333,10 @@ class GSlamFilter:
         poses[:, 2] = wrap_angle(poses[:, 2])
         self.poses = np.where(matched[:, None], poses, self.poses)
         return int(matched.sum()), log_like
+
+
+def _end_points(scan: Scan, stride: int = 1) -> np.ndarray:
+    """Every `stride`-th return's end point (K, 2) in the sensor frame."""
+    _, z, b = scan.return_polar()
+    sel = slice(None, None, stride)
+    return np.column_stack([z[sel] * np.cos(b[sel]), z[sel] * np.sin(b[sel])])

@@ -30,35 +30,12 @@ import numpy as np
 
 from gslam.motion import wrap_angle
 from gslam.scan import window_boxes
-from gslam.scanmatch import MatchWorkspace, match_and_weigh
+from gslam.scanmatch import MatchSettings, MatchWorkspace, match_and_weigh
 from gslam.se2 import between_scalar, compose, compose_scalar, inverse
 
 PLACED, BETWEEN, NO_RETURNS = 0, 1, 2
 """How a scan's pose was set: matched against the map; between matched neighbours (its match was not
 kept); between matched neighbours for want of returns."""
-
-
-@dataclass(frozen=True)
-class MatchSettings:
-    """The matcher's settings (FilterConfig's match_* names, without the prefix)."""
-
-    cell_m: float
-    kernel: int
-    min_p: float
-    margin_m: float
-    step_xy_m: float
-    step_phi_rad: float
-    levels: int
-    max_iterations: int
-    score_sigma_m: float
-    score_sigma_rad: float | None
-    like_sigma_m: float
-    miss_m: float
-    line_pair_m: float
-    polish_iterations: int
-    climb_stride: int
-    fine_stride: int
-    fine_levels: int
 
 
 @dataclass(frozen=True)
@@ -245,31 +222,9 @@ def _place_run(
         if len(xy) == 0:
             continue
         matched, _, _, hits = match_and_weigh(
-            xy,
-            p,
-            lo,
-            np.array([len(xy)], dtype=np.int64),
-            start,
-            pts,
-            cell_m=match.cell_m,
-            kernel=match.kernel,
-            min_p=match.min_p,
-            margin_m=match.margin_m,
-            step_xy_m=match.step_xy_m,
-            step_phi_rad=match.step_phi_rad,
-            levels=match.levels,
-            max_iterations=match.max_iterations,
-            score_sigma_m=match.score_sigma_m,
-            score_sigma_rad=match.score_sigma_rad if match.score_sigma_rad is not None else increment_rad,
-            like_sigma_m=match.like_sigma_m,
-            miss_m=match.miss_m,
-            line_pair_m=match.line_pair_m,
-            workspace=workspace,
-            polish_iterations=match.polish_iterations,
-            climb_stride=match.climb_stride,
-            fine_stride=match.fine_stride,
-            fine_levels=match.fine_levels,
-        )
+            xy, p, lo, np.array([len(xy)], dtype=np.int64), start, pts, workspace=workspace,
+            **match.arguments(increment_rad),
+        )  # fmt: skip
         q = matched[0]
         shift = math.hypot(q[0] - start[0, 0], q[1] - start[0, 1])
         turn = abs(float(wrap_angle(q[2] - start[0, 2])))

@@ -32,6 +32,8 @@ with its own raster, so the result does not depend on the number of threads.
 from __future__ import annotations
 
 import math
+from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numba import njit, prange
@@ -40,6 +42,9 @@ from gslam.fastmath import fast_exp
 from gslam.pointmap import MAP_DTYPE
 from gslam.scan import window_boxes
 from gslam.workqueue import next_index
+
+if TYPE_CHECKING:
+    from gslam.config import FilterConfig
 
 _EMPTY = -1
 
@@ -653,6 +658,60 @@ def _coarse_start_all(chosen, map_xy, map_p, lo, hi, poses, climb_ends, climb_di
                               score_inv, coarse_ends, coarse_dirs, coarse_inv, windows[i], cell_m, kernel, min_p, match,
                               grids[w], sums[w], touched[w], coarse_grids[w], coarse_sums[w], coarse_touched[w],
                               out)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class MatchSettings:
+    """The settings `match_and_weigh` takes (its keyword names) but the coarse start's: the update's from
+    FilterConfig's match_* options (`from_config`), the placement's with its own steps."""
+
+    cell_m: float
+    kernel: int
+    min_p: float
+    margin_m: float
+    step_xy_m: float
+    step_phi_rad: float
+    levels: int
+    max_iterations: int
+    score_sigma_m: float
+    score_sigma_rad: float | None
+    """None: the scan's own angle between beams (`arguments`)."""
+    like_sigma_m: float
+    miss_m: float
+    line_pair_m: float
+    polish_iterations: int
+    climb_stride: int
+    fine_stride: int
+    fine_levels: int
+
+    @classmethod
+    def from_config(cls, cfg: FilterConfig) -> MatchSettings:
+        return cls(
+            cell_m=cfg.match_cell_m,
+            kernel=cfg.match_kernel,
+            min_p=cfg.match_min_p,
+            margin_m=cfg.match_window_margin_m,
+            step_xy_m=cfg.match_step_xy_m,
+            step_phi_rad=cfg.match_step_phi_rad,
+            levels=cfg.match_levels,
+            max_iterations=cfg.match_max_iterations,
+            score_sigma_m=cfg.match_sigma_m,
+            score_sigma_rad=cfg.match_sigma_rad,
+            like_sigma_m=cfg.weight_sigma_m,
+            miss_m=cfg.weight_miss_m,
+            line_pair_m=cfg.match_line_pair_m,
+            polish_iterations=cfg.match_polish_iterations,
+            climb_stride=cfg.match_climb_stride,
+            fine_stride=cfg.match_fine_stride,
+            fine_levels=cfg.match_fine_levels,
+        )
+
+    def arguments(self, angle_increment_rad: float) -> dict[str, Any]:
+        """`match_and_weigh`'s keyword arguments for a scan whose beams are `angle_increment_rad` apart."""
+        args = asdict(self)
+        if self.score_sigma_rad is None:
+            args["score_sigma_rad"] = angle_increment_rad
+        return args
 
 
 class MatchWorkspace:

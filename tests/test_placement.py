@@ -8,7 +8,8 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from gslam.placement import BETWEEN, NO_RETURNS, PLACED, MatchSettings, between_matched, place_scans
+from gslam.placement import BETWEEN, NO_RETURNS, PLACED, between_matched, place_scans
+from gslam.scanmatch import MatchSettings
 from gslam.se2 import compose, inverse
 
 WALLS = [  # a 10 x 8 m room with a 2 x 1 m box in it: (x0, y0, x1, y1)
