@@ -45,34 +45,15 @@ def build_grid(
     was taken; `map_p` are occupancy probabilities of the map points `map_xy`. `progress(done, total)`
     counts the input's scans read (a long log takes seconds per thousand scans)."""
     scan_indices = np.asarray(scan_indices, dtype=np.int64)
-    total = int(scan_indices[-1]) + 1 if len(scan_indices) else 0
     spec = GridSpec.around(np.vstack([np.asarray(map_xy).reshape(-1, 2), laser_poses[:, :2]]), resolution_m)
     casts = ScanCaster(spec)
     g = log.geometry
     bearings = g.bearings_rad + bearing_offset_rad
-    j = 0
-    k = -1
-    for k, msg in enumerate(log.mcap.messages([ch.LASER])):
-        if j == len(scan_indices):
-            break
-        if progress is not None:
-            progress(min(k + 1, total), total)
-        if k != scan_indices[j]:
-            continue
-        r = np.asarray(msg.value.ranges, dtype=float)
-        try:
-            own = log.scan_geometry(msg.value, len(r))
-        except ValueError as e:
-            raise InputError(f"{log.path}: scan {k}: {e}") from None
+    for j, ev in enumerate(log.scans_at(scan_indices, progress)):
+        r = ev.ranges_m
         returns = np.isfinite(r) & (r < g.max_range_m) & (r > log.self_return_range_m)
-        beams = bearings if own is g else own.bearings_rad + bearing_offset_rad
+        beams = bearings if ev.geometry is g else ev.geometry.bearings_rad + bearing_offset_rad
         casts.add_scan(laser_poses[j], np.where(returns, r, np.nan), beams)
-        j += 1
-    if j < len(scan_indices):
-        raise InputError(
-            f"{log.path}: the run needs scan {int(scan_indices[j])} but the input has {k + 1} scans; "
-            "is this the run's input?"
-        )
     occupied = occupied_cells(spec, map_xy, map_p, OCCUPIED_THRESH, casts.hit, support_m)
     return OccupancyGrid.combine(spec, occupied, casts.free)
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -154,6 +154,30 @@ class InputLog:
                 ev.index = k
                 k += 1
             yield ev
+
+    def scans_at(
+        self, indices: Sequence[int], progress: Callable[[int, int], None] | None = None
+    ) -> Iterator[ScanEvent]:
+        """The input's scans number `indices` (increasing), read again (a run's scans, once it is over: to
+        place them, to cast them into a grid). `progress(done, total)` counts the scans read. InputError
+        when the input ends before the last of them (not the run's input)."""
+        total = int(indices[-1]) + 1 if len(indices) else 0
+        wanted = iter(indices)
+        j = next(wanted, None)
+        k = -1
+        for ev in self.events(scans_only=True):
+            if j is None:
+                return
+            k = ev.index
+            if progress is not None:
+                progress(min(k + 1, total), total)
+            if k == j:
+                yield ev
+                j = next(wanted, None)
+        if j is not None:
+            raise InputError(
+                f"{self.path}: the run needs scan {int(j)} but the input has {k + 1} scans; is this the run's input?"
+            )
 
     def read_all(self, topic: str) -> list[Message]:
         return list(converted(self.mcap, [topic], lambda m: m))

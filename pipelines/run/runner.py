@@ -169,16 +169,8 @@ class SlamRunner:
     def scans_at(self, indices: list[int]) -> Iterator[Scan]:
         """The filter's scans of the input's scans number `indices` (increasing), read again from the input
         (the run's scans, for the placement of every scan once it is over)."""
-        wanted = iter(indices)
-        j = next(wanted, None)
-        for ev in self.log.events(scans_only=True):
-            if j is None:
-                return
-            if isinstance(ev, ScanEvent) and ev.index == j:
-                yield self.scan_of(ev)
-                j = next(wanted, None)
-        if j is not None:
-            raise InputError(f"{self.log.path}: the run needs scan {j} but the input ends before it")
+        for ev in self.log.scans_at(indices):
+            yield self.scan_of(ev)
 
     def steps(self) -> Iterator[Step]:
         fcfg = self.cfg.filter
