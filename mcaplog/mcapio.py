@@ -16,7 +16,7 @@ import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 from mcap.data_stream import ReadDataStream
 from mcap.reader import make_reader
@@ -45,9 +45,18 @@ class AtomicMcapWriter:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         fd, self.tmp_path = create_temporary(self.path)
-        self._file = os.fdopen(fd, "wb")
-        self._writer = McapWriter(self._file, chunk_size=chunk_size)
-        self._writer.start(profile=profile, library="gslam")
+        self._file: BinaryIO | None = None
+        try:
+            self._file = os.fdopen(fd, "wb")
+            self._writer = McapWriter(self._file, chunk_size=chunk_size)
+            self._writer.start(profile=profile, library="gslam")
+        except BaseException:  # an error or a signal while it starts: no temporary left behind
+            try:
+                self._file.close() if self._file is not None else os.close(fd)
+            except OSError:
+                pass
+            self.tmp_path.unlink(missing_ok=True)
+            raise
         self._channels: dict[str, int] = {}
         self._json_schemas: dict[str, int] = {}
         self._proto_schemas: dict[str, int] = {}

@@ -17,6 +17,12 @@ directory or a symlink (`-o /dev/stdout`, a link to `/proc/self/fd/1`) would put
 was, which as root replaces `/dev/null` or `/dev/stdout` for every program. `create_temporary` and
 `replace` refuse such a path (`NotRegularFileError`), the last guard behind the commands' own check of
 their outputs.
+
+A signal can land between the creation of a temporary and the moment its writer holds its name (inside
+`create_temporary`, or before the caller has stored what it returned); no writer then knows to drop it.
+So every temporary is also recorded here from before it exists until it is renamed into place
+(`replace`), and the command line's exit removes the ones of this process still present
+(`remove_own_temporaries`).
 No dependency on the rest of the project: ingest, the pipelines and the writers all use it.
 """
 
@@ -158,11 +164,37 @@ def check_replaceable(path: Path) -> None:
         )
 
 
+_OWN: dict[Path, int] = {}
+"""This process's temporaries not yet renamed into place, each with the id of the process that made it
+(a forked child inherits the record but not the files' ownership)."""
+
+
 def replace(tmp: Path, path: Path) -> None:
     """Move the finished temporary `tmp` to `path` (`os.replace`), unless `path` has become something
     other than a regular file meanwhile (NotRegularFileError; the temporary is left to the caller)."""
     check_replaceable(path)
     os.replace(tmp, path)
+    _OWN.pop(Path(tmp), None)
+
+
+def remove_own_temporaries() -> list[Path]:
+    """Remove the temporaries this process created and did not rename into place (a writer that a signal
+    stopped before it knew its temporary), and return those that were still there. For the command line's
+    exit: by then every output was finished or aborted, so any left is an orphan."""
+    removed = []
+    pid = os.getpid()
+    for tmp, owner in list(_OWN.items()):
+        if owner != pid:
+            continue
+        _OWN.pop(tmp, None)
+        try:
+            tmp.unlink()
+            removed.append(tmp)
+        except FileNotFoundError:
+            pass  # its writer removed it
+        except OSError:
+            pass  # cannot: the next run writing the same output removes it as stale
+    return removed
 
 
 def glob_escape(name: str) -> str:
@@ -178,9 +210,11 @@ def create_temporary(path: Path) -> tuple[int, Path]:
     remove_stale_temporaries(path)
     for _ in range(100):
         tmp = path.with_name(f".{path.name}.{os.getpid()}-{_own_start()}-{secrets.token_hex(6)}.tmp")
+        _OWN[tmp] = os.getpid()  # before it exists: a signal from here on cannot orphan it
         try:
             return os.open(tmp, _FLAGS, 0o666), tmp
         except FileExistsError:
+            _OWN.pop(tmp, None)
             continue
     raise FileExistsError(errno.EEXIST, "cannot create a temporary file", str(path))
 

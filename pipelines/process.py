@@ -78,9 +78,16 @@ def _occupancy(runner: SlamRunner, log: InputLog, scan_indices: list[int], cfg: 
 
 
 def _abort(writers: list[ResultWriter]) -> None:
-    """The one way a run that cannot be completed ends: every writer drops its file."""
+    """The one way a run that cannot be completed ends: every writer drops its file (each one, even when
+    another fails to; the first failure is raised after)."""
+    failure: BaseException | None = None
     for w in writers:
-        w.abort()
+        try:
+            w.abort()
+        except BaseException as e:
+            failure = failure or e
+    if failure is not None:
+        raise failure
 
 
 @dataclass
@@ -137,7 +144,11 @@ def process(
     user why the run waits (the kernels' first compile, the occupancy grid); compile time is left out of
     the recorded step times and recorded as `compile_s`."""
     run = _open(input_path, output_path, rrd_path, cfg, command, rrd_writer)
-    times = _run_steps(run, progress, notice)
+    try:
+        times = _run_steps(run, progress, notice)
+    except BaseException:  # a signal before its loop could catch it: the outputs are dropped, not orphaned
+        _abort(run.writers)
+        raise
     summary = _finish(run, times, notice)
     if times.after_last_scan is not None:
         times.after_last_scan.add_note(f"wrote {run.written}: every scan was processed before the signal")
@@ -172,10 +183,10 @@ def _open(
         metadata = _run_metadata(input_path, log, runner, cfg, command)
         for w in writers:
             w.start(RunStart(log, metadata))
+        return _OpenRun(log, runner, writers, cfg, Path(output_path), Path(rrd_path) if rrd_path else None)
     except BaseException:
         _abort(writers)
         raise
-    return _OpenRun(log, runner, writers, cfg, Path(output_path), Path(rrd_path) if rrd_path else None)
 
 
 def _run_metadata(input_path: Path, log: InputLog, runner: SlamRunner, cfg: RunConfig, command: str | None) -> dict:

@@ -164,6 +164,33 @@ def test_a_signal_at_start_up_exits_130_without_a_traceback(carpark_mcap, tmp_pa
         assert not (tmp_path / "r.rrd").exists()
 
 
+@pytest.mark.parametrize(
+    "at",
+    [
+        "mcaplog/tempfiles.py:create_temporary:return:1",  # the result MCAP's temporary, not yet its writer's
+        "mcaplog/tempfiles.py:temporary_for:return:1",  # the recording's temporary, not yet in its writer
+        "pipelines/process.py:_open:return",  # outputs open, the run's loop not yet entered
+        "pipelines/process.py:_run_steps:call",
+    ],
+)
+def test_a_signal_between_a_temporary_and_its_writer_leaves_nothing(carpark_mcap, tmp_path, at):
+    """The windows a timed signal (above) hits one run in many: the signal sent at an exact point
+    (tests/signal_at.py). Exit 130, one line, nothing at the final paths, no temporary left."""
+    env = dict(os.environ, SIGNAL_AT=at, GSLAM_PROGRESS="")
+    script = Path(__file__).with_name("signal_at.py")
+    proc = subprocess.run(
+        [sys.executable, script, "gslam", "process", carpark_mcap, tmp_path / "r.mcap", "--max-scans", "20"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 130, proc.stderr
+    assert "Traceback" not in proc.stderr and "Exception ignored" not in proc.stderr, proc.stderr
+    assert proc.stderr.strip().splitlines()[-1] == "interrupted (SIGINT)", proc.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
 def test_a_stalled_rerun_writer_is_killed_and_the_result_mcap_kept(carpark_mcap, tmp_path):
     out = tmp_path / "r.mcap"
     proc = _cli(["process", carpark_mcap, out, "--max-scans", "200"], {"GSLAM_WRITER_TIMEOUT_S": "3"})

@@ -109,10 +109,11 @@ def _lama_harness(request: BenchRequest, echo: Callable[[str], None]) -> Path | 
     if not (request.lama / "run.sh").exists():
         echo(f"--lama {request.lama}: no run.sh there; LaMa is left out")
         return None
-    if not lama_built() and not os.environ.get("LAMA_MIRROR"):
+    if not lama_built(request.lama) and not os.environ.get("LAMA_MIRROR"):
         echo(
-            f"--lama {request.lama}: LaMa is not built ({lama_build_dir() / 'bin' / 'lama_driver'}) and LAMA_MIRROR "
-            "(a git dir of iris-ua/iris_lama to build it from) is not set; LaMa is left out"
+            f"--lama {request.lama}: LaMa is not built ({lama_build_dir() / 'bin' / 'lama_driver'}, or it is older "
+            "than the harness's driver.cpp) and LAMA_MIRROR (a git dir of iris-ua/iris_lama to build it from) is "
+            "not set; LaMa is left out"
         )
         return None
     return request.lama

@@ -87,10 +87,15 @@ def lama_build_dir() -> Path:
     return Path(os.environ.get("LAMA_BUILD") or "/tmp/lama")
 
 
-def lama_built() -> bool:
-    """Is the harness's driver built (`/tmp/lama/bin/lama_driver`)? Without it, a run first builds LaMa,
-    which needs `$LAMA_MIRROR`."""
-    return (lama_build_dir() / "bin" / "lama_driver").is_file()
+def lama_built(harness: Path) -> bool:
+    """Will `harness/run.sh` run the driver as built (`/tmp/lama/bin/lama_driver`), rather than build it
+    first (which needs `$LAMA_MIRROR`)? Its own test: the driver exists and is newer than the harness's
+    `driver.cpp` (a fresh copy of the harness, as in a clean checkout, is newer than any build)."""
+    driver = lama_build_dir() / "bin" / "lama_driver"
+    try:
+        return driver.is_file() and driver.stat().st_mtime > (harness / "driver.cpp").stat().st_mtime
+    except OSError:
+        return False
 
 
 def lama_commit() -> str | None:

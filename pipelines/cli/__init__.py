@@ -58,9 +58,11 @@ def run() -> None:
         run_app()
     except KeyboardInterrupt as e:  # outside a command (a command's own are handled by `errors.guarded`)
         interrupts.exiting()
+        _remove_orphans()
         _interrupted(interrupts.exit_code_of(e))
     except SystemExit as e:
         interrupts.exiting()
+        _remove_orphans()
         code = interrupts.unreported_exit_code(e.code)
         if code is not None:
             _interrupted(code)
@@ -69,6 +71,15 @@ def run() -> None:
         raise
     finally:
         interrupts.exiting()
+        _remove_orphans()
+
+
+def _remove_orphans() -> None:
+    """Remove any temporary this process made whose writer never learnt of it (a signal between its
+    creation and the writer's hold on it: `mcaplog.tempfiles`). Every output is finished or dropped by now."""
+    from mcaplog.tempfiles import remove_own_temporaries
+
+    remove_own_temporaries()
 
 
 def __getattr__(name: str) -> Any:

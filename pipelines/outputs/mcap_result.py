@@ -16,6 +16,7 @@ from mcaplog import channels as ch
 from mcaplog import wire
 from mcaplog.mcapio import AtomicMcapWriter, to_ns
 from pipelines.outputs.writer import RunEnd, RunStart
+from pipelines.run import interrupts
 from pipelines.run.runner import Step
 
 PATH_POSES_MAX = 512
@@ -51,7 +52,8 @@ class McapResultWriter:
         self.geometry = run.log.geometry
         mount = run.log.mount
         self.mount = (0.0, 0.0, 0.0) if mount is None else (mount.x_m, mount.y_m, mount.yaw_rad)
-        self.writer = AtomicMcapWriter(self.path)
+        with interrupts.deferred():  # a signal while the temporary exists but is not yet in self.writer waits
+            self.writer = AtomicMcapWriter(self.path)
         for name, data in run.metadata.items():
             self.writer.add_metadata(name, data)
 

@@ -15,6 +15,7 @@ from mcaplog.tempfiles import temporary_for
 from pipelines.outputs import rerun_entities as entity
 from pipelines.outputs.writer import RunEnd, RunStart
 from pipelines.outputs.writer_child import WriterChild, start_rerun_writer
+from pipelines.run import interrupts
 from pipelines.run.runner import Step
 
 
@@ -79,7 +80,8 @@ class RerunResultWriter:
         """Open the recording for scans of `geometry`, times counted from `t0_s`, with the static GPS track
         and landmarks."""
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.tmp = temporary_for(self.path)
+        with interrupts.deferred():  # a signal while the temporary exists but is not yet in self.tmp waits
+            self.tmp = temporary_for(self.path)
         self.geometry = geometry
         self.t0_s = t0_s
         self.bearings = geometry.bearings_rad
