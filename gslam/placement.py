@@ -15,7 +15,9 @@ it (`between_matched`). A scan with fewer than `min_returns` returns has nothing
 the same way and counted apart. When no scan at all is matched, the trajectory is left as recorded.
 
 The map's points are sorted once into square tiles (`tile_m`) so that each match reads only the points
-of the tiles its window covers, not the whole map.
+of the tiles its window covers, not the whole map. The scans are placed in batches by one compiled call
+each (`_place_batch`, the matcher's own kernels: the same poses as `match_and_weigh` with one particle),
+so no scan costs an interpreter round trip.
 """
 
 from __future__ import annotations
@@ -27,11 +29,12 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
-from gslam.motion import wrap_angle
-from gslam.scan import window_boxes
-from gslam.scanmatch import MatchSettings, MatchWorkspace, match_and_weigh
-from gslam.se2 import between_scalar, compose, compose_scalar, inverse
+from gslam.motion import wrap_angle, wrap_angle_scalar
+from gslam.pointmap import MAP_DTYPE
+from gslam.scanmatch import _EMPTY, MatchSettings, _fine_climb, _finish, _rasterise_range, _to_means
+from gslam.se2 import compose, compose_scalar, inverse
 
 PLACED, BETWEEN, NO_RETURNS = 0, 1, 2
 """How a scan's pose was set: matched against the map; between matched neighbours (its match was not
@@ -70,7 +73,7 @@ class Placement:
 
 class MapTiles:
     """A point map's usable points (p >= min_p) sorted into square tiles, so that the points inside a box
-    are found by one binary search per row of tiles."""
+    are found by one binary search per column of tiles (`_tile_ranges`)."""
 
     def __init__(self, xy: np.ndarray, p: np.ndarray, min_p: float, tile_m: float = 4.0) -> None:
         keep = np.asarray(p) >= min_p
@@ -84,25 +87,9 @@ class MapTiles:
         key = cells[:, 0] * self.rows + cells[:, 1]
         order = np.argsort(key, kind="stable")
         self.key = key[order]
-        self.xy = np.ascontiguousarray(xy[order])
-        self.p = np.ascontiguousarray(p[order])
-
-    def inside(self, x0: float, y0: float, x1: float, y1: float) -> tuple[np.ndarray, np.ndarray]:
-        """The points (and probabilities) of the tiles that the box [x0, x1] x [y0, y1] touches."""
-        t = self.tile_m
-        ix0 = max(0, int(math.floor((x0 - self.origin[0]) / t)))
-        ix1 = min(self.cols - 1, int(math.floor((x1 - self.origin[0]) / t)))
-        iy0 = max(0, int(math.floor((y0 - self.origin[1]) / t)))
-        iy1 = min(self.rows - 1, int(math.floor((y1 - self.origin[1]) / t)))
-        if ix1 < ix0 or iy1 < iy0:
-            return self.xy[:0], self.p[:0]
-        cols = np.arange(ix0, ix1 + 1, dtype=np.int64) * self.rows
-        lo = np.searchsorted(self.key, cols + iy0, side="left")
-        hi = np.searchsorted(self.key, cols + iy1, side="right")
-        if len(lo) == 1:
-            return self.xy[lo[0] : hi[0]], self.p[lo[0] : hi[0]]
-        idx = np.concatenate([np.arange(a, b) for a, b in zip(lo, hi, strict=True)])
-        return self.xy[idx], self.p[idx]
+        # in the matcher's precision once, not converted at every match
+        self.xy = np.ascontiguousarray(xy[order], dtype=MAP_DTYPE)
+        self.p = np.ascontiguousarray(p[order], dtype=MAP_DTYPE)
 
 
 ScanSource = Callable[[int, int], Iterable[tuple[np.ndarray, float]]]
@@ -184,6 +171,10 @@ def _cuts(n: int, anchored: np.ndarray | None, workers: int) -> list[int]:
     return cuts + [n]
 
 
+BATCH = 256
+"""Scans handed to the compiled placement at once (and the progress reported after each batch)."""
+
+
 def _place_run(
     tiles: MapTiles,
     recorded: np.ndarray,
@@ -199,41 +190,152 @@ def _place_run(
     report: Callable[[int], None],
 ) -> None:
     """Place the scans a to b - 1 (`poses`, `how` written in place); scan a and the anchored ones start from
-    their recorded pose, the others from the scan before as placed, moved as `path` moves."""
-    workspace = MatchWorkspace(1)
-    lo = np.zeros(1, dtype=np.int64)
-    k = a - 1
-    for k, (pts, increment_rad) in enumerate(scans, start=a):
-        if k >= b:
-            raise ValueError(f"more scans than recorded poses ({len(recorded)})")
-        if (k - a) % 256 == 0:
-            report(k - a)
-        pts = np.asarray(pts, dtype=float).reshape(-1, 2)
-        if anchored is None or anchored[k] or k == a:
-            start = recorded[k : k + 1].copy()
-        else:
-            start = np.array([compose_scalar(poses[k - 1], between_scalar(path[k - 1], path[k]))])
-        poses[k] = start[0]  # the next scan's start when this one is not matched
-        if len(pts) < limits.min_returns:
-            how[k] = NO_RETURNS
-            continue
-        x0, y0, x1, y1 = (float(v[0]) for v in window_boxes(start, pts, match.margin_m + limits.max_shift_m))
-        xy, p = tiles.inside(x0, y0, x1, y1)
-        if len(xy) == 0:
-            continue
-        matched, _, _, hits = match_and_weigh(
-            xy, p, lo, np.array([len(xy)], dtype=np.int64), start, pts, workspace=workspace,
-            **match.arguments(increment_rad),
+    their recorded pose, the others from the scan before as placed, moved as `path` moves. The scans are
+    read here and placed in batches by one compiled call each (`_place_batch`)."""
+    anchor = np.ones(len(recorded), dtype=np.bool_) if anchored is None else np.asarray(anchored, dtype=np.bool_)
+    parameters = match.parameters()
+    grid = np.full(0, _EMPTY, dtype=np.int32)
+    sums = np.empty((len(tiles.xy) + 1, 3))
+    touched = np.empty(len(tiles.xy) + 1, dtype=np.int64)
+    pending: list[tuple[np.ndarray, float]] = []
+
+    def place(first: int) -> None:
+        nonlocal grid
+        ends = np.concatenate([e for e, _ in pending]) if pending else np.zeros((0, 2))
+        counts = np.array([len(e) for e, _ in pending], dtype=np.int64)
+        offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        rng = np.hypot(ends[:, 0], ends[:, 1])
+        widths = [inc if match.score_sigma_rad is None else match.score_sigma_rad for _, inc in pending]
+        sigma_rad = np.repeat(np.asarray(widths, dtype=float), counts)
+        # as `match_and_weigh`: the directions of the returns and the score's width at each
+        dirs = ends / np.maximum(rng, 1e-12)[:, None]
+        score_inv = 0.5 / (match.score_sigma_m**2 + (rng * sigma_rad) ** 2)
+        reach = float(rng.max()) if len(rng) else 0.0
+        side = int(math.ceil((2.0 * (reach + match.margin_m)) / match.cell_m)) + 2
+        if side * side > len(grid):
+            grid = np.full(int(side * side * 1.25) + 1, _EMPTY, dtype=np.int32)
+        _place_batch(
+            tiles.xy, tiles.p, tiles.key, tiles.origin[0], tiles.origin[1], tiles.tile_m, tiles.rows, tiles.cols,
+            ends, dirs, score_inv, offsets, first, a, anchor, recorded, path, poses, how,
+            match.cell_m, match.kernel, match.min_p, match.margin_m, parameters, match.climb_stride,
+            match.fine_stride, limits.min_returns, limits.min_hit_fraction, limits.max_shift_m, limits.max_turn_rad,
+            grid, sums, touched,
         )  # fmt: skip
-        q = matched[0]
-        shift = math.hypot(q[0] - start[0, 0], q[1] - start[0, 1])
-        turn = abs(float(wrap_angle(q[2] - start[0, 2])))
-        explained = hits[0] >= limits.min_hit_fraction * len(pts)
-        if explained and shift <= limits.max_shift_m and turn <= limits.max_turn_rad:
-            poses[k] = q
-            how[k] = PLACED
-    if k + 1 != b:
-        raise ValueError(f"{k + 1 - a} scans for the {b - a} recorded poses {a} to {b - 1}")
+
+    read = a  # scans read so far: a to read - 1
+    for pts, increment_rad in scans:
+        if read >= b:
+            raise ValueError(f"more scans than recorded poses ({len(recorded)})")
+        pending.append((np.asarray(pts, dtype=float).reshape(-1, 2), float(increment_rad)))
+        read += 1
+        if len(pending) == BATCH:
+            report(read - BATCH - a)
+            place(read - BATCH)
+            pending = []
+    if pending:
+        report(read - len(pending) - a)
+        place(read - len(pending))
+    if read != b:
+        raise ValueError(f"{read - a} scans for the {b - a} recorded poses {a} to {b - 1}")
+
+
+@njit(cache=True, nogil=True)
+def _tile_ranges(key, rows, cols, origin_x, origin_y, tile_m, x0, y0, x1, y1, lo, hi):  # pragma: no cover - compiled
+    """`MapTiles.inside` as index ranges lo[c]:hi[c], one per column of tiles the box touches, in its order;
+    returns how many (0: the box misses the map)."""
+    ix0 = max(0, int(math.floor((x0 - origin_x) / tile_m)))
+    ix1 = min(cols - 1, int(math.floor((x1 - origin_x) / tile_m)))
+    iy0 = max(0, int(math.floor((y0 - origin_y) / tile_m)))
+    iy1 = min(rows - 1, int(math.floor((y1 - origin_y) / tile_m)))
+    if ix1 < ix0 or iy1 < iy0:
+        return 0
+    n = 0
+    for ix in range(ix0, ix1 + 1):
+        lo[n] = np.searchsorted(key, ix * rows + iy0, side="left")
+        hi[n] = np.searchsorted(key, ix * rows + iy1, side="right")
+        n += 1
+    return n
+
+
+@njit(cache=True, nogil=True)
+def _window(px, py, c, s, ends, o0, o1, margin):  # pragma: no cover - compiled
+    """`gslam.scan.window_boxes` for one pose (the same operations in the same order)."""
+    x0, y0, x1, y1 = np.inf, np.inf, -np.inf, -np.inf
+    for j in range(o0, o1):
+        x = px + c * ends[j, 0] - s * ends[j, 1]
+        y = py + s * ends[j, 0] + c * ends[j, 1]
+        x0, y0, x1, y1 = min(x0, x), min(y0, y), max(x1, x), max(y1, y)
+    return min(x0, px) - margin, min(y0, py) - margin, max(x1, px) + margin, max(y1, py) + margin
+
+
+@njit(cache=True, nogil=True)
+def _place_batch(tile_xy, tile_p, key, origin_x, origin_y, tile_m, rows, cols, ends, dirs, score_inv, offsets,
+                 first, a, anchored, recorded, path, poses, how, cell_m, kernel, min_p, margin, match, climb_stride,
+                 fine_stride, min_returns, min_hit_fraction, max_shift, max_turn, grid, sums,
+                 touched):  # pragma: no cover - compiled  # fmt: skip
+    """Place the scans first, first + 1, ... (their returns ends[offsets[i]:offsets[i + 1]]) in turn, as
+    `match_and_weigh` matches one particle: the start (recorded at anchored scans and at a, else the scan
+    before as placed moved along `path`), the map's tiles under the start's window grown by max_shift,
+    their points rasterised in the match window, the fine climb and the Gauss-Newton finish, the match
+    kept or not (`PlacementLimits`). `poses` and `how` written in place."""
+    lo = np.empty(cols, dtype=np.int64)
+    hi = np.empty(cols, dtype=np.int64)
+    start = np.empty(3)
+    for i in range(offsets.shape[0] - 1):
+        k = first + i
+        if anchored[k] or k == a:
+            start[0], start[1], start[2] = recorded[k, 0], recorded[k, 1], recorded[k, 2]
+        else:  # between_scalar then compose_scalar, as in Python
+            ca, sa = math.cos(path[k - 1, 2]), math.sin(path[k - 1, 2])
+            dx, dy = path[k, 0] - path[k - 1, 0], path[k, 1] - path[k - 1, 1]
+            mx, my, mphi = ca * dx + sa * dy, -sa * dx + ca * dy, path[k, 2] - path[k - 1, 2]
+            c, s = math.cos(poses[k - 1, 2]), math.sin(poses[k - 1, 2])
+            phi = (poses[k - 1, 2] + mphi + math.pi) % (2 * math.pi) - math.pi
+            start[0] = poses[k - 1, 0] + c * mx - s * my
+            start[1] = poses[k - 1, 1] + s * mx + c * my
+            start[2] = phi
+        poses[k, 0], poses[k, 1], poses[k, 2] = start[0], start[1], start[2]  # the next start if not matched
+        o0, o1 = offsets[i], offsets[i + 1]
+        if o1 - o0 < min_returns:
+            how[k] = 2  # NO_RETURNS
+            continue
+        c, s = math.cos(start[2]), math.sin(start[2])
+        bx0, by0, bx1, by1 = _window(start[0], start[1], c, s, ends, o0, o1, margin + max_shift)
+        n_ranges = _tile_ranges(key, rows, cols, origin_x, origin_y, tile_m, bx0, by0, bx1, by1, lo, hi)
+        points = 0
+        for r in range(n_ranges):
+            points += hi[r] - lo[r]
+        if points == 0:
+            continue
+        x0, y0, x1, y1 = _window(start[0], start[1], c, s, ends, o0, o1, margin)
+        nx = int(math.ceil((x1 - x0) / cell_m) + 1)
+        ny = int(math.ceil((y1 - y0) / cell_m) + 1)
+        used = 0
+        for r in range(n_ranges):  # the tiles' points, in `MapTiles`' order, as one `_rasterise`
+            used = _rasterise_range(tile_xy, tile_p, lo[r], hi[r], min_p, x0, y0, nx, ny, cell_m, grid, sums, touched,
+                                    used)  # fmt: skip
+        _to_means(sums, used)
+        e, d, w = ends[o0:o1].copy(), dirs[o0:o1].copy(), score_inv[o0:o1].copy()
+        ce, cd, cw = e, d, w  # the climb's returns and the fine levels' (`scanmatch._every`)
+        if climb_stride > 1:
+            ce, cd, cw = e[::climb_stride].copy(), d[::climb_stride].copy(), w[::climb_stride].copy()
+        fe, fd, fw = ce, cd, cw
+        if fine_stride > 1:
+            fe, fd, fw = ce[::fine_stride].copy(), cd[::fine_stride].copy(), cw[::fine_stride].copy()
+        pose = start.copy()
+        if used:
+            result = _fine_climb(pose, ce, cd, cw, fe, fd, fw, e, d, w, x0, y0, nx, ny, cell_m, kernel, grid, sums,
+                                 match)  # fmt: skip
+        else:  # no map in the window: every return misses
+            result = _finish(pose, e, d, x0, y0, nx, ny, cell_m, kernel, grid, sums, w, match[7], match[4], match[5],
+                             match[6], 0, match[12], match[12])  # fmt: skip
+        for slot in range(used):
+            grid[touched[slot]] = -1
+        shift = math.hypot(pose[0] - start[0], pose[1] - start[1])
+        turn = abs(wrap_angle_scalar(pose[2] - start[2]))
+        if result[2] >= min_hit_fraction * (o1 - o0) and shift <= max_shift and turn <= max_turn:
+            poses[k, 0], poses[k, 1], poses[k, 2] = pose[0], pose[1], pose[2]
+            how[k] = 0  # PLACED
 
 
 def dead_reckoned(start: np.ndarray, motion: np.ndarray) -> np.ndarray:

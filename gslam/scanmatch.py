@@ -47,6 +47,8 @@ if TYPE_CHECKING:
     from gslam.config import FilterConfig
 
 _EMPTY = -1
+POLISH_TOLERANCE = 1e-4
+"""The Gauss-Newton finish stops when a step is below this (m and rad)."""
 
 
 @njit(cache=True, inline="always")
@@ -210,10 +212,9 @@ def _to_means(sums, used):
 
 
 @njit(cache=True, inline="always")
-def _rasterise(map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched):
-    """Rasterise the points lo:hi with p >= min_p inside the window into `grid` (slot per occupied cell,
-    -1 empty); sums[slot, :2] ends as the mean of the cell's points. Returns the occupied cells."""
-    used = 0
+def _rasterise_range(map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched, used):
+    """Add the points lo:hi with p >= min_p inside the window to `grid` (slot per occupied cell, -1 empty)
+    and their coordinates to sums[slot]; `used` cells occupied before, returns those after."""
     inv = 1.0 / cell_m  # a multiplication per point, as `_nearest_two`'s
     for k in range(lo, hi):
         if map_p[k] < min_p:
@@ -223,6 +224,14 @@ def _rasterise(map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums,
         if cx < 0 or cx >= nx or cy < 0 or cy >= ny:
             continue
         used = _add_point(map_xy[k, 0], map_xy[k, 1], cx * ny + cy, grid, sums, touched, used)
+    return used
+
+
+@njit(cache=True, inline="always")
+def _rasterise(map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched):
+    """Rasterise the points lo:hi with p >= min_p inside the window into `grid` (slot per occupied cell,
+    -1 empty); sums[slot, :2] ends as the mean of the cell's points. Returns the occupied cells."""
+    used = _rasterise_range(map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched, 0)
     _to_means(sums, used)
     return used
 
@@ -706,6 +715,15 @@ class MatchSettings:
             fine_levels=cfg.match_fine_levels,
         )
 
+    def parameters(self) -> np.ndarray:
+        """The kernels' `match` array for these settings, as `match_and_weigh` builds it without a coarse
+        start."""
+        return match_parameters(
+            self.step_xy_m, self.step_phi_rad, self.levels, self.max_iterations, self.score_sigma_m,
+            self.like_sigma_m, self.miss_m, self.line_pair_m, 1, 2, 0.0, self.polish_iterations, POLISH_TOLERANCE,
+            self.fine_levels if self.fine_stride > 1 else 0,
+        )  # fmt: skip
+
     def arguments(self, angle_increment_rad: float) -> dict[str, Any]:
         """`match_and_weigh`'s keyword arguments for a scan whose beams are `angle_increment_rad` apart."""
         args = asdict(self)
@@ -749,6 +767,44 @@ def _every(stride: int, arrays: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...
     return arrays if k == 1 else tuple(np.ascontiguousarray(a[::k]) for a in arrays)
 
 
+def match_parameters(
+    step_xy_m: float,
+    step_phi_rad: float,
+    levels: int,
+    max_iterations: int,
+    score_sigma_m: float,
+    like_sigma_m: float,
+    miss_m: float,
+    line_pair_m: float,
+    coarse_factor: int,
+    coarse_levels: int,
+    coarse_min_gain: float,
+    polish_iterations: int,
+    polish_tolerance: float,
+    fine_levels: int,
+) -> np.ndarray:
+    """The compiled kernels' `match` array: the settings as they read them (`_fine_climb`, `_coarse_start_one`),
+    with the score's and the weight's widths as 0.5 / sigma^2 and the distances squared."""
+    return np.array(
+        [
+            step_xy_m,
+            step_phi_rad,
+            levels,
+            max_iterations,
+            0.5 / score_sigma_m**2,
+            0.5 / like_sigma_m**2,
+            miss_m**2,
+            line_pair_m**2,
+            coarse_factor,
+            coarse_levels,
+            coarse_min_gain,
+            polish_iterations,
+            polish_tolerance,
+            fine_levels,
+        ]
+    )
+
+
 def match_and_weigh(
     map_xy: np.ndarray,
     map_p: np.ndarray,
@@ -779,7 +835,7 @@ def match_and_weigh(
     coarse_gate: float = math.inf,
     coarse_reference: float = 0.0,
     polish_iterations: int = 0,
-    polish_tolerance: float = 1e-4,
+    polish_tolerance: float = POLISH_TOLERANCE,
     climb_stride: int = 1,
     fine_stride: int = 1,
     fine_levels: int = 0,
@@ -818,24 +874,10 @@ def match_and_weigh(
     depth = max(1, int(coarse_depth)) if f > 1 else 0
     coarse_cells = sum(int(((nx // f ** (lv + 1) + 1) * (ny // f ** (lv + 1) + 1)).max()) for lv in range(depth))
     workspace.reserve(int((nx * ny).max()), int(sizes.max()) if n else 0, coarse_cells, depth)
-    match = np.array(
-        [
-            step_xy_m,
-            step_phi_rad,
-            levels,
-            max_iterations,
-            0.5 / score_sigma_m**2,
-            0.5 / like_sigma_m**2,
-            miss_m**2,
-            line_pair_m**2,
-            f,
-            coarse_levels,
-            coarse_min_gain,
-            polish_iterations,
-            polish_tolerance,
-            fine_levels if fine_stride > 1 else 0,
-        ]
-    )
+    match = match_parameters(
+        step_xy_m, step_phi_rad, levels, max_iterations, score_sigma_m, like_sigma_m, miss_m, line_pair_m, f,
+        coarse_levels, coarse_min_gain, polish_iterations, polish_tolerance, fine_levels if fine_stride > 1 else 0,
+    )  # fmt: skip
     dirs = ends / np.maximum(rng, 1e-12)[:, None]
     score_inv = 0.5 / (score_sigma_m**2 + (rng * score_sigma_rad) ** 2)
     map_xy = np.ascontiguousarray(map_xy, dtype=MAP_DTYPE)

@@ -185,18 +185,23 @@ def test_placement_counts_every_scan_once():
         place_scans(xy, p, truth[:5], lambda a, b: ends, SETTINGS)
 
 
+def drifting_updates(truth: np.ndarray, every: int) -> tuple[np.ndarray, np.ndarray]:
+    """The poses a filter records along `truth` whose odometry turns 0.004 rad too far each scan, matched
+    (set to the truth) every `every` scans, and which scans those are."""
+    steps = compose(inverse(truth[:-1]), truth[1:])
+    steps[:, 2] += 0.004
+    recorded = [truth[0]]
+    for k, s in enumerate(steps, start=1):
+        recorded.append(truth[k] if k % every == 0 else compose(recorded[-1], s))
+    return np.asarray(recorded), np.arange(len(truth)) % every == 0
+
+
 def test_workers_place_parts_of_the_run_at_once_with_the_same_result():
     """Cut at anchored scans, where a scan starts from its recorded pose either way: two or three workers
     give the one worker's poses exactly, whatever the order their threads run in."""
     xy, p = room_map()
     truth = truth_path(90)
-    steps = compose(inverse(truth[:-1]), truth[1:])
-    steps[:, 2] += 0.004
-    recorded = [truth[0]]
-    for k, s in enumerate(steps, start=1):
-        recorded.append(truth[k] if k % 20 == 0 else compose(recorded[-1], s))  # an update every 20 scans
-    recorded = np.asarray(recorded)
-    anchored = np.arange(90) % 20 == 0
+    recorded, anchored = drifting_updates(truth, 20)  # an update every 20 scans
     ends = [(scan_from(q), 0.0) for q in truth]
     read = []
 
@@ -213,6 +218,24 @@ def test_workers_place_parts_of_the_run_at_once_with_the_same_result():
         np.testing.assert_array_equal(many.poses, one.poses)
         np.testing.assert_array_equal(many.how, one.how)
     assert errors(one.poses, truth)[0] < 0.005
+
+
+def test_batches_of_any_size_place_the_scans_alike(monkeypatch):
+    """The compiled placement takes the scans a batch at a time, each starting from the scan before as the
+    previous batch placed it: the batch size changes nothing, even where a batch ends between updates."""
+    import gslam.placement as placement
+
+    xy, p = room_map()
+    truth = truth_path(40)
+    recorded, anchored = drifting_updates(truth, 15)
+    ends = [(scan_from(q), 0.0) if k != 7 else (np.zeros((0, 2)), 0.0) for k, q in enumerate(truth)]
+    whole = place_scans(xy, p, recorded, of(ends), SETTINGS, anchored=anchored)
+    assert whole.how[7] == NO_RETURNS and np.sum(whole.how == PLACED) == 39
+    for size in (1, 4, 7):
+        monkeypatch.setattr(placement, "BATCH", size)
+        batched = place_scans(xy, p, recorded, of(ends), SETTINGS, anchored=anchored)
+        np.testing.assert_array_equal(batched.poses, whole.poses)
+        np.testing.assert_array_equal(batched.how, whole.how)
 
 
 def test_the_scalar_motion_is_the_composition():
