@@ -210,17 +210,17 @@ def _place_run(
         # as `match_and_weigh`: the directions of the returns and the score's width at each
         dirs = ends / np.maximum(rng, 1e-12)[:, None]
         score_inv = 0.5 / (match.score_sigma_m**2 + (rng * sigma_rad) ** 2)
-        reach = float(rng.max()) if len(rng) else 0.0
-        side = int(math.ceil((2.0 * (reach + match.margin_m)) / match.cell_m)) + 2
-        if side * side > len(grid):
-            grid = np.full(int(side * side * 1.25) + 1, _EMPTY, dtype=np.int32)
-        _place_batch(
-            tiles.xy, tiles.p, tiles.key, tiles.origin[0], tiles.origin[1], tiles.tile_m, tiles.rows, tiles.cols,
-            ends, dirs, score_inv, offsets, first, a, anchor, recorded, path, poses, how,
-            match.cell_m, match.kernel, match.min_p, match.margin_m, parameters, match.climb_stride,
-            match.fine_stride, limits.min_returns, limits.min_hit_fraction, limits.max_shift_m, limits.max_turn_rad,
-            grid, sums, touched,
-        )  # fmt: skip
+        i = 0
+        while i < len(pending):
+            i, cells = _place_batch(
+                tiles.xy, tiles.p, tiles.key, tiles.origin[0], tiles.origin[1], tiles.tile_m, tiles.rows, tiles.cols,
+                ends, dirs, score_inv, offsets, first, i, a, anchor, recorded, path, poses, how,
+                match.cell_m, match.kernel, match.min_p, match.margin_m, parameters, match.climb_stride,
+                match.fine_stride, limits.min_returns, limits.min_hit_fraction, limits.max_shift_m, limits.max_turn_rad,
+                grid, sums, touched,
+            )  # fmt: skip
+            if i < len(pending):  # scan i's window needs a larger raster (as `MatchWorkspace.reserve`)
+                grid = np.full(int(cells * 1.25) + 1, _EMPTY, dtype=np.int32)
 
     read = a  # scans read so far: a to read - 1
     for pts, increment_rad in scans:
@@ -270,18 +270,21 @@ def _window(px, py, c, s, ends, o0, o1, margin):  # pragma: no cover - compiled
 
 @njit(cache=True, nogil=True)
 def _place_batch(tile_xy, tile_p, key, origin_x, origin_y, tile_m, rows, cols, ends, dirs, score_inv, offsets,
-                 first, a, anchored, recorded, path, poses, how, cell_m, kernel, min_p, margin, match, climb_stride,
-                 fine_stride, min_returns, min_hit_fraction, max_shift, max_turn, grid, sums,
+                 first, begin, a, anchored, recorded, path, poses, how, cell_m, kernel, min_p, margin, match,
+                 climb_stride, fine_stride, min_returns, min_hit_fraction, max_shift, max_turn, grid, sums,
                  touched):  # pragma: no cover - compiled  # fmt: skip
     """Place the scans first, first + 1, ... (their returns ends[offsets[i]:offsets[i + 1]]) in turn, as
     `match_and_weigh` matches one particle: the start (recorded at anchored scans and at a, else the scan
     before as placed moved along `path`), the map's tiles under the start's window grown by max_shift,
     their points rasterised in the match window, the fine climb and the Gauss-Newton finish, the match
-    kept or not (`PlacementLimits`). `poses` and `how` written in place."""
+    kept or not (`PlacementLimits`). `poses` and `how` written in place. Starts at the batch's scan `begin`;
+    returns (the scans of the batch done, 0), or (i, cells) when scan i's window needs a raster of that many
+    cells, more than `grid` has: the caller grows it and calls again from i."""
     lo = np.empty(cols, dtype=np.int64)
     hi = np.empty(cols, dtype=np.int64)
     start = np.empty(3)
-    for i in range(offsets.shape[0] - 1):
+    n = offsets.shape[0] - 1
+    for i in range(begin, n):
         k = first + i
         if anchored[k] or k == a:
             start[0], start[1], start[2] = recorded[k, 0], recorded[k, 1], recorded[k, 2]
@@ -310,6 +313,8 @@ def _place_batch(tile_xy, tile_p, key, origin_x, origin_y, tile_m, rows, cols, e
         x0, y0, x1, y1 = _window(start[0], start[1], c, s, ends, o0, o1, margin)
         nx = int(math.ceil((x1 - x0) / cell_m) + 1)
         ny = int(math.ceil((y1 - y0) / cell_m) + 1)
+        if nx * ny > grid.shape[0]:
+            return i, nx * ny
         used = 0
         for r in range(n_ranges):  # the tiles' points, in `MapTiles`' order, as one `_rasterise`
             used = _rasterise_range(tile_xy, tile_p, lo[r], hi[r], min_p, x0, y0, nx, ny, cell_m, grid, sums, touched,
@@ -336,6 +341,7 @@ def _place_batch(tile_xy, tile_p, key, origin_x, origin_y, tile_m, rows, cols, e
         if result[2] >= min_hit_fraction * (o1 - o0) and shift <= max_shift and turn <= max_turn:
             poses[k, 0], poses[k, 1], poses[k, 2] = pose[0], pose[1], pose[2]
             how[k] = 0  # PLACED
+    return n, 0
 
 
 def dead_reckoned(start: np.ndarray, motion: np.ndarray) -> np.ndarray:
