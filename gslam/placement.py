@@ -241,8 +241,8 @@ def _place_run(
 
 @njit(cache=True, nogil=True)
 def _tile_ranges(key, rows, cols, origin_x, origin_y, tile_m, x0, y0, x1, y1, lo, hi):  # pragma: no cover - compiled
-    """`MapTiles.inside` as index ranges lo[c]:hi[c], one per column of tiles the box touches, in its order;
-    returns how many (0: the box misses the map)."""
+    """The map points of the tiles that the box [x0, x1] x [y0, y1] touches, as index ranges lo[c]:hi[c] into
+    `MapTiles`' sorted arrays, one per column of tiles, in order; returns how many (0: the box misses the map)."""
     ix0 = max(0, int(math.floor((x0 - origin_x) / tile_m)))
     ix1 = min(cols - 1, int(math.floor((x1 - origin_x) / tile_m)))
     iy0 = max(0, int(math.floor((y0 - origin_y) / tile_m)))
