@@ -33,8 +33,9 @@ from numba import njit
 
 from gslam.motion import wrap_angle, wrap_angle_scalar
 from gslam.pointmap import MAP_DTYPE
+from gslam.scan import end_point_box
 from gslam.scanmatch import _EMPTY, MatchSettings, _fine_climb, _finish, _rasterise_range, _to_means
-from gslam.se2 import compose, compose_scalar, inverse
+from gslam.se2 import between_compiled, compose, compose_compiled, compose_scalar, inverse
 
 PLACED, BETWEEN, NO_RETURNS = 0, 1, 2
 """How a scan's pose was set: matched against the map; between matched neighbours (its match was not
@@ -258,17 +259,6 @@ def _tile_ranges(key, rows, cols, origin_x, origin_y, tile_m, x0, y0, x1, y1, lo
 
 
 @njit(cache=True, nogil=True)
-def _window(px, py, c, s, ends, o0, o1, margin):  # pragma: no cover - compiled
-    """`gslam.scan.window_boxes` for one pose (the same operations in the same order)."""
-    x0, y0, x1, y1 = np.inf, np.inf, -np.inf, -np.inf
-    for j in range(o0, o1):
-        x = px + c * ends[j, 0] - s * ends[j, 1]
-        y = py + s * ends[j, 0] + c * ends[j, 1]
-        x0, y0, x1, y1 = min(x0, x), min(y0, y), max(x1, x), max(y1, y)
-    return min(x0, px) - margin, min(y0, py) - margin, max(x1, px) + margin, max(y1, py) + margin
-
-
-@njit(cache=True, nogil=True)
 def _place_batch(tile_xy, tile_p, key, origin_x, origin_y, tile_m, rows, cols, ends, dirs, score_inv, offsets,
                  first, begin, a, anchored, recorded, path, poses, how, cell_m, kernel, min_p, margin, match,
                  climb_stride, fine_stride, min_returns, min_hit_fraction, max_shift, max_turn, grid, sums,
@@ -288,29 +278,24 @@ def _place_batch(tile_xy, tile_p, key, origin_x, origin_y, tile_m, rows, cols, e
         k = first + i
         if anchored[k] or k == a:
             start[0], start[1], start[2] = recorded[k, 0], recorded[k, 1], recorded[k, 2]
-        else:  # between_scalar then compose_scalar, as in Python
-            ca, sa = math.cos(path[k - 1, 2]), math.sin(path[k - 1, 2])
-            dx, dy = path[k, 0] - path[k - 1, 0], path[k, 1] - path[k - 1, 1]
-            mx, my, mphi = ca * dx + sa * dy, -sa * dx + ca * dy, path[k, 2] - path[k - 1, 2]
-            c, s = math.cos(poses[k - 1, 2]), math.sin(poses[k - 1, 2])
-            phi = (poses[k - 1, 2] + mphi + math.pi) % (2 * math.pi) - math.pi
-            start[0] = poses[k - 1, 0] + c * mx - s * my
-            start[1] = poses[k - 1, 1] + s * mx + c * my
-            start[2] = phi
+        else:
+            start[0], start[1], start[2] = compose_compiled(poses[k - 1], between_compiled(path[k - 1], path[k]))
         poses[k, 0], poses[k, 1], poses[k, 2] = start[0], start[1], start[2]  # the next start if not matched
         o0, o1 = offsets[i], offsets[i + 1]
         if o1 - o0 < min_returns:
             how[k] = 2  # NO_RETURNS
             continue
-        c, s = math.cos(start[2]), math.sin(start[2])
-        bx0, by0, bx1, by1 = _window(start[0], start[1], c, s, ends, o0, o1, margin + max_shift)
-        n_ranges = _tile_ranges(key, rows, cols, origin_x, origin_y, tile_m, bx0, by0, bx1, by1, lo, hi)
+        e, d, w = ends[o0:o1].copy(), dirs[o0:o1].copy(), score_inv[o0:o1].copy()
+        rx0, ry0, rx1, ry1 = end_point_box(start[0], start[1], math.cos(start[2]), math.sin(start[2]), e)
+        reach = margin + max_shift  # the tiles: the window of a match that moves the start as far as kept
+        n_ranges = _tile_ranges(key, rows, cols, origin_x, origin_y, tile_m, rx0 - reach, ry0 - reach, rx1 + reach,
+                                ry1 + reach, lo, hi)  # fmt: skip
         points = 0
         for r in range(n_ranges):
             points += hi[r] - lo[r]
         if points == 0:
             continue
-        x0, y0, x1, y1 = _window(start[0], start[1], c, s, ends, o0, o1, margin)
+        x0, y0, x1, y1 = rx0 - margin, ry0 - margin, rx1 + margin, ry1 + margin
         nx = int(math.ceil((x1 - x0) / cell_m) + 1)
         ny = int(math.ceil((y1 - y0) / cell_m) + 1)
         if nx * ny > grid.shape[0]:
@@ -320,7 +305,6 @@ def _place_batch(tile_xy, tile_p, key, origin_x, origin_y, tile_m, rows, cols, e
             used = _rasterise_range(tile_xy, tile_p, lo[r], hi[r], min_p, x0, y0, nx, ny, cell_m, grid, sums, touched,
                                     used)  # fmt: skip
         _to_means(sums, used)
-        e, d, w = ends[o0:o1].copy(), dirs[o0:o1].copy(), score_inv[o0:o1].copy()
         ce, cd, cw = e, d, w  # the climb's returns and the fine levels' (`scanmatch._every`)
         if climb_stride > 1:
             ce, cd, cw = e[::climb_stride].copy(), d[::climb_stride].copy(), w[::climb_stride].copy()

@@ -94,20 +94,27 @@ def window_boxes(
     return boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3]
 
 
+@njit(cache=True, inline="always")
+def end_point_box(px, py, c, s, ends):  # pragma: no cover - compiled
+    """(x0, y0, x1, y1): the box of the pose (px, py) and its returns' end points `ends` (K, 2, sensor frame)
+    placed at it (c, s: the cosine and sine of its heading), the end point x + c ex - s ey, y + s ex + c ey,
+    as the array expressions `window_boxes` replaced, in their order, so the same numbers."""
+    x0, y0, x1, y1 = np.inf, np.inf, -np.inf, -np.inf
+    for j in range(ends.shape[0]):
+        x = px + c * ends[j, 0] - s * ends[j, 1]
+        y = py + s * ends[j, 0] + c * ends[j, 1]
+        x0, y0, x1, y1 = min(x0, x), min(y0, y), max(x1, x), max(y1, y)
+    return min(x0, px), min(y0, py), max(x1, px), max(y1, py)
+
+
 @njit(cache=True)
 def _window_boxes(poses, cos_phi, sin_phi, ends, margin_m):  # pragma: no cover - compiled
-    """`window_boxes`: the end point x + c ex - s ey, y + s ex + c ey, as the array expressions it replaced,
-    in their order, so the same numbers."""
+    """`window_boxes`: each pose's `end_point_box`, grown by the margin."""
     out = np.empty((poses.shape[0], 4))
     for i in range(poses.shape[0]):
-        px, py, c, s = poses[i, 0], poses[i, 1], cos_phi[i], sin_phi[i]
-        x0, y0, x1, y1 = np.inf, np.inf, -np.inf, -np.inf
-        for j in range(ends.shape[0]):
-            x = px + c * ends[j, 0] - s * ends[j, 1]
-            y = py + s * ends[j, 0] + c * ends[j, 1]
-            x0, y0, x1, y1 = min(x0, x), min(y0, y), max(x1, x), max(y1, y)
-        out[i, 0], out[i, 1] = min(x0, px) - margin_m, min(y0, py) - margin_m
-        out[i, 2], out[i, 3] = max(x1, px) + margin_m, max(y1, py) + margin_m
+        x0, y0, x1, y1 = end_point_box(poses[i, 0], poses[i, 1], cos_phi[i], sin_phi[i], ends)
+        out[i, 0], out[i, 1] = x0 - margin_m, y0 - margin_m
+        out[i, 2], out[i, 3] = x1 + margin_m, y1 + margin_m
     return out
 
 

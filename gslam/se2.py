@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from gslam.motion import wrap_angle
 
@@ -56,3 +57,9 @@ def compose_scalar(a: tuple[float, float, float], b: tuple[float, float, float])
     c, s = math.cos(a[2]), math.sin(a[2])
     phi = (a[2] + b[2] + math.pi) % (2 * math.pi) - math.pi
     return a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], phi
+
+
+between_compiled = njit(cache=True, inline="always")(between_scalar)
+"""`between_scalar` for compiled loops (the same operations, so the same numbers)."""
+compose_compiled = njit(cache=True, inline="always")(compose_scalar)
+"""`compose_scalar` for compiled loops."""

@@ -52,7 +52,10 @@ class AtomicMcapWriter:
             self._writer.start(profile=profile, library="gslam")
         except BaseException:  # an error or a signal while it starts: no temporary left behind
             try:
-                self._file.close() if self._file is not None else os.close(fd)
+                if self._file is not None:
+                    self._file.close()
+                else:
+                    os.close(fd)
             except OSError:
                 pass
             self.tmp_path.unlink(missing_ok=True)

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 from conftest import MIT, ROOT, require
+from test_bench_speed import stand_in_harness
 
 from pipelines.bench.corpus import CorpusLog
 from pipelines.bench.lama import LamaRun, lama_build_dir, lama_built, lama_commit, lama_note, lama_seed, run_lama
@@ -40,21 +41,14 @@ SEED0_LINE = (
 )
 
 
-def _harness(tmp_path: Path, body: str) -> Path:
-    d = tmp_path / "lama"
-    d.mkdir()
-    (d / "run.sh").write_text(f"#!/usr/bin/env bash\n{body}\n")
-    return d
-
-
 def test_the_pf_summary_line_is_read(tmp_path):
-    harness = _harness(tmp_path, f"echo 'CXX driver.cpp' >&2; echo building; echo '{PF_LINE}'")
+    harness = stand_in_harness(tmp_path, f"echo 'CXX driver.cpp' >&2; echo building; echo '{PF_LINE}'")
     run = run_lama(harness, Path("/data/mit-csail.clf.gz"), "pf", 1, tmp_path)
     assert run == LamaRun("mit-csail", "pf", 1, 1, 773, 1988, 0.047, 0.047, 2.32, 27.15, 155396 / 1024, 32.0)
 
 
 def test_the_slam2d_line_has_no_seed(tmp_path):
-    harness = _harness(tmp_path, f"echo '{SLAM2D_LINE}'")
+    harness = stand_in_harness(tmp_path, f"echo '{SLAM2D_LINE}'")
     run = run_lama(harness, Path("/data/mit-csail.clf.gz"), "slam2d", 0, tmp_path)
     assert (run.mode, run.effective_seed, run.processed, run.total) == ("slam2d", None, 1836, 1988)
     assert (run.trans_m, run.trans_sd_m, run.rot_deg, run.wall_s, run.ms_per_update) == (0.162, 0.581, 1.5, 1.24, 0.6)
@@ -62,7 +56,7 @@ def test_the_slam2d_line_has_no_seed(tmp_path):
 
 
 def test_a_log_without_relations_and_a_drawn_seed(tmp_path):
-    harness = _harness(tmp_path, f"echo '{SEED0_LINE}'")
+    harness = stand_in_harness(tmp_path, f"echo '{SEED0_LINE}'")
     run = run_lama(harness, Path("/w/carpark.gmapping.txt"), "pf", 0, tmp_path)
     assert (run.log, run.seed, run.effective_seed) == ("carpark", 0, 1906136070)
     assert run.trans_m is None and run.rot_deg is None and run.peak_mb == 100.0
@@ -70,7 +64,7 @@ def test_a_log_without_relations_and_a_drawn_seed(tmp_path):
 
 def test_the_harness_gets_its_arguments_lama_out_and_lama_mirror(tmp_path, monkeypatch):
     monkeypatch.setenv("LAMA_MIRROR", "/mirrors/iris_lama")
-    harness = _harness(tmp_path, f'echo "$*|$LAMA_OUT|$LAMA_MIRROR" > "{tmp_path}/args"; echo \'{PF_LINE}\'')
+    harness = stand_in_harness(tmp_path, f'echo "$*|$LAMA_OUT|$LAMA_MIRROR" > "{tmp_path}/args"; echo \'{PF_LINE}\'')
     run_lama(harness, Path("/data/mit-csail.clf.gz"), "pf", 3, tmp_path, particles=12)
     assert (tmp_path / "args").read_text().strip() == (
         f"/data/mit-csail.clf.gz pf 12 3|{tmp_path / 'lama'}|/mirrors/iris_lama"
@@ -83,7 +77,7 @@ def test_a_failing_harness_says_why(tmp_path):
         "echo 'build.sh: line 13: LAMA_MIRROR: set LAMA_MIRROR to a git clone (or git dir) of github "
         "iris-ua/iris_lama' >&2; exit 1"
     )
-    harness = _harness(tmp_path, body)
+    harness = stand_in_harness(tmp_path, body)
     with pytest.raises(RuntimeError) as e:
         run_lama(harness, Path("/data/intel.clf.gz"), "pf", 1, tmp_path)
     message = str(e.value)
@@ -93,13 +87,13 @@ def test_a_failing_harness_says_why(tmp_path):
 
 
 def test_a_line_out_of_format_is_refused_with_the_line(tmp_path):
-    harness = _harness(tmp_path, "echo 'warning: odd' >&2; echo 'mit-csail  pf  something else'")
+    harness = stand_in_harness(tmp_path, "echo 'warning: odd' >&2; echo 'mit-csail  pf  something else'")
     with pytest.raises(RuntimeError, match=r"pf 30 1 gave no pf summary line.*something else.*warning: odd"):
         run_lama(harness, Path("/data/mit-csail.clf.gz"), "pf", 1, tmp_path)
 
 
 def test_a_silent_crash_points_to_the_drivers_files(tmp_path):
-    harness = _harness(tmp_path, "exit 139")
+    harness = stand_in_harness(tmp_path, "exit 139")
     with pytest.raises(RuntimeError, match=r"failed \(exit 139\): \(no message; the driver's .err"):
         run_lama(harness, Path("/data/mit-csail.clf.gz"), "slam2d", 0, tmp_path)
 

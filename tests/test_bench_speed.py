@@ -15,21 +15,22 @@ LINE = (
 )
 
 
-def _harness(tmp_path: Path, body: str) -> Path:
-    d = tmp_path / "gm"
+def stand_in_harness(tmp_path: Path, body: str, name: str = "harness") -> Path:
+    """A stand-in harness directory `name` whose run.sh runs `body` (the peers' harnesses are run so)."""
+    d = tmp_path / name
     d.mkdir()
     (d / "run.sh").write_text(f"#!/usr/bin/env bash\n{body}\n")
     return d
 
 
 def test_the_harness_summary_line_is_read(tmp_path):
-    harness = _harness(tmp_path, f"echo building >&2; echo '{LINE}'")
+    harness = stand_in_harness(tmp_path, f"echo building >&2; echo '{LINE}'")
     run = run_gmapping(harness, Path("/data/mit-csail.clf.gz"), 30, 0, tmp_path)
     assert run == GMappingRun("mit-csail", 82.44, 127.0, 0.055, 3.39)  # rotation too: the tables compare both
 
 
 def test_a_failing_harness_says_why(tmp_path):
-    harness = _harness(tmp_path, "echo 'GM_MIRROR: set GM_MIRROR to a git clone' >&2; exit 1")
+    harness = stand_in_harness(tmp_path, "echo 'GM_MIRROR: set GM_MIRROR to a git clone' >&2; exit 1")
     with pytest.raises(RuntimeError, match="GM_MIRROR"):
         run_gmapping(harness, Path("/data/intel.clf.gz"), 30, 0, tmp_path)
 
