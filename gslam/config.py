@@ -252,6 +252,12 @@ class FilterConfig:
     """... and it moves the scan's start by less than this (more is a jump, not a correction) ..."""
     place_max_turn_rad: float = 0.25
     """... and turns it by less than this."""
+    loop_closure: bool = True
+    """When the run ends (after the placement), put a pose graph under the trajectory: nodes every 0.5 m or
+    0.5 rad, tied by the placed motion, closed by each node's scan found by branch and bound in submaps
+    left at least 20 m of travel before, optimised under a robust loss (`gslam.backend`, its settings
+    `BackEndSettings`); the trajectory, the final map and the occupancy grid follow the optimised graph.
+    False: the placed trajectory as it is (docs/CHOICES.md, "Back end")."""
 
     # Resampling.
     resample_threshold: float = 0.5

@@ -11,6 +11,7 @@ import numpy as np
 
 from gslam import mapupdate
 from gslam.ancestry import AncestryTree
+from gslam.backend import BackEndSettings, PoseGraphBackEnd
 from gslam.config import FilterConfig
 from gslam.motion import wrap_angle, wrap_angle_scalar
 from gslam.placement import Placement, PlacementLimits, place_scans
@@ -95,6 +96,8 @@ class GSlamFilter:
         self._updated: list[bool] = []  # per step: whether it updated the maps (its poses were matched)
         self._motion: list[tuple[float, float, float]] = []
         """Per step: the noise-free motion from the scan before (in its frame), whatever the filter did."""
+        self._corrected_map: tuple[int, np.ndarray, np.ndarray] | None = None
+        """(particle, points, p): the best particle's map moved with the pose graph (`close_loops`)."""
         self.placed: tuple[np.ndarray, np.ndarray] | None = None
         """(times, poses) of the best particle's trajectory with every scan placed by its final map
         (`place_every_scan`); `best_trajectory()` gives it once set."""
@@ -133,14 +136,7 @@ class GSlamFilter:
         best = self.best_particle()
         times, recorded = self.tree.trajectory(best)
         xy, p = self.map_points(best)
-        settings = replace(
-            MatchSettings.from_config(cfg),
-            step_xy_m=cfg.place_step_xy_m,
-            step_phi_rad=cfg.place_step_phi_rad,
-            levels=cfg.place_levels,
-            climb_stride=cfg.place_climb_stride,
-            fine_levels=min(cfg.match_fine_levels, cfg.place_levels + 1),
-        )
+        settings = self.placement_matcher()
         limits = PlacementLimits(
             min_hit_fraction=cfg.place_min_hit_fraction,
             max_shift_m=cfg.place_max_shift_m,
@@ -154,12 +150,49 @@ class GSlamFilter:
 
         anchored = np.asarray(self._updated, dtype=bool)
         motion = np.asarray(self._motion, dtype=float).reshape(-1, 3)
-        placement = place_scans(xy, p, recorded, ends, settings, limits, anchored, workers, progress, motion)
+        placement = place_scans(xy, p, recorded, ends, settings, limits, anchored, workers, progress, motion, times)
         self.placed = (times, placement.poses)
         return placement
 
+    def placement_matcher(self) -> MatchSettings:
+        """The matcher of the placement (the update's, with the place_* settings)."""
+        cfg = self.cfg
+        return replace(
+            MatchSettings.from_config(cfg),
+            step_xy_m=cfg.place_step_xy_m,
+            step_phi_rad=cfg.place_step_phi_rad,
+            levels=cfg.place_levels,
+            climb_stride=cfg.place_climb_stride,
+            fine_levels=min(cfg.match_fine_levels, cfg.place_levels + 1),
+        )
+
+    def close_loops(
+        self, scans: Callable[[list[int]], Iterable[Scan]], settings: BackEndSettings | None = None
+    ) -> PoseGraphBackEnd:
+        """The pose graph under the best particle's trajectory (placed, if `place_every_scan` ran) closed by
+        loop closures (`gslam.backend`); `best_trajectory()` then gives the optimised trajectory and
+        `map_points(best)` the best particle's map moved with it (each point with the node whose scan
+        returns lie nearest it). `scans(steps)`: the run's scans at those steps (increasing). The maps and
+        the particles are not changed."""
+        best = self.best_particle()
+        times, front = self.best_trajectory()
+        backend = PoseGraphBackEnd(settings or BackEndSettings())
+        steps = backend.node_steps(front)
+        for step, scan in zip(steps, scans(list(steps)), strict=True):
+            backend.add_node(step, front[step], _end_points(self._as_observed(scan)))
+        backend.finish()
+        corrected = backend.correct_trajectory(front)
+        xy, p = self.map_points(best)
+        moved = backend.correct_points(np.asarray(xy, dtype=float))
+        self.placed = (times, corrected)
+        self._corrected_map = (best, moved.astype(np.asarray(xy).dtype), p)
+        return backend
+
     def map_points(self, particle: int) -> tuple[np.ndarray, np.ndarray]:
-        """The particle's map as points (K, 2) with probabilities (K,)."""
+        """The particle's map as points (K, 2) with probabilities (K,); the best particle's moved with the
+        pose graph once `close_loops` has run."""
+        if self._corrected_map is not None and self._corrected_map[0] == particle:
+            return self._corrected_map[1], self._corrected_map[2]
         m = self.maps[particle]
         return m.xy, m.p
 

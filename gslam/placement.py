@@ -109,6 +109,7 @@ def place_scans(
     workers: int = 1,
     progress: Callable[[int, int], None] | None = None,
     motion: np.ndarray | None = None,
+    times: np.ndarray | None = None,
 ) -> Placement:
     """Match each scan against the map (`map_xy`, `map_p`) and return the placed trajectory; the scans
     whose match is not kept are placed between matched neighbours. `scans(a, b)` gives the scans a to
@@ -123,7 +124,13 @@ def place_scans(
     the filter's correction is in them); None: the recorded poses' differences. `workers` > 1: the scans
     are cut at anchored scans into that many runs, placed at once (threads; the compiled matcher runs
     without the interpreter's lock), each reading its own scans: the same result as one worker.
-    `progress(done, total)` is called every 256 scans or so."""
+    `progress(done, total)` is called every 256 scans or so.
+
+    A scan whose match is not kept, or whose motion breaks from its neighbours', is matched once more from
+    the pose between the matched scans around it, interpolated by its time (`times`, T; None: by its
+    index), and the better of its two matches kept: the start from the scan before fails where the motion
+    does (an odometry reading lost for one scan, then caught up at the next), and along a corridor or a
+    road such a wrong start can still match."""
     recorded = np.asarray(recorded, dtype=float).reshape(-1, 3)
     n = len(recorded)
     path = recorded if motion is None else dead_reckoned(recorded[0], motion)
@@ -133,6 +140,9 @@ def place_scans(
     cuts = _cuts(n, anchored, workers)
     done = [0] * (len(cuts) - 1)
     lock = threading.Lock()
+    unplaced: dict[int, tuple[np.ndarray, float]] = {}  # the scans not placed, for the second start
+    suspect = _motion_breaks(path, anchored)
+    fit = np.zeros(n)
 
     def report(part: int, k: int) -> None:
         if progress is not None:
@@ -143,7 +153,7 @@ def place_scans(
     def run(part: int) -> None:
         a, b = cuts[part], cuts[part + 1]
         _place_run(tiles, recorded, path, poses, how, a, b, scans(a, b), match, limits, anchored,
-                   lambda k: report(part, k))  # fmt: skip
+                   lambda k: report(part, k), fit, unplaced, suspect)  # fmt: skip
 
     if len(cuts) == 2:
         run(0)
@@ -151,9 +161,75 @@ def place_scans(
         with ThreadPoolExecutor(len(cuts) - 1) as pool:
             for f in [pool.submit(run, part) for part in range(len(cuts) - 1)]:
                 f.result()
+    _place_again_between(tiles, poses, how, fit, unplaced, suspect, match, limits, times)
     if progress is not None:
         progress(n, n)
     return Placement(between_matched(path, poses, how == PLACED), how)
+
+
+SUSPECT_SHIFT_M = 0.25
+SUSPECT_TURN_RAD = 0.1
+"""A scan's motion breaks from its neighbours' when it differs from their mean by this much."""
+
+
+def _motion_breaks(path: np.ndarray, anchored: np.ndarray | None) -> np.ndarray:
+    """The scans (T,) bool, not anchored, whose motion from the scan before differs from the mean of the
+    motions before and after it by SUSPECT_SHIFT_M or SUSPECT_TURN_RAD: an odometry reading lost for one
+    scan (no motion, then twice the motion), or a spike."""
+    n = len(path)
+    out = np.zeros(n, dtype=bool)
+    if n < 3:
+        return out
+    step = compose(inverse(path[:-1]), path[1:])  # row k: the motion into scan k + 1
+    mean = 0.5 * (step[:-1] + step[1:])
+    diff = step[:-1] - mean  # scan k + 1's motion against the mean of its own and the next one's
+    out[1:-1] = (np.hypot(diff[:, 0], diff[:, 1]) >= SUSPECT_SHIFT_M) | (np.abs(diff[:, 2]) >= SUSPECT_TURN_RAD)
+    if anchored is not None:
+        out &= ~np.asarray(anchored, dtype=bool)
+    return out
+
+
+def _place_again_between(
+    tiles: MapTiles,
+    poses: np.ndarray,
+    how: np.ndarray,
+    fit: np.ndarray,
+    unplaced: dict[int, tuple[np.ndarray, float]],
+    suspect: np.ndarray,
+    match: MatchSettings,
+    limits: PlacementLimits,
+    times: np.ndarray | None,
+) -> None:
+    """The second start of `place_scans`, for the scans not placed and those whose motion breaks from their
+    neighbours' (`_motion_breaks`; returns in `unplaced`): each matched from the pose interpolated by time
+    between the placed scans around it, and kept where its match is kept and fits better
+    than the first one's. `poses`, `how` and `fit` written in place."""
+    placed = np.flatnonzero(how == PLACED)
+    if len(placed) < 2 or not unplaced:
+        return
+    at = np.array(sorted(k for k in unplaced if how[k] != NO_RETURNS), dtype=np.int64)
+    before = np.searchsorted(placed, at, side="left") - 1  # the placed scans around each, not itself
+    after = np.searchsorted(placed, at, side="right")
+    inside = (before >= 0) & (after < len(placed))
+    at, before, after = at[inside], before[inside], after[inside]
+    if len(at) == 0:
+        return
+    ia, ib = placed[before], placed[after]
+    clock = np.arange(len(poses), dtype=float) if times is None else np.asarray(times, dtype=float)
+    span = clock[ib] - clock[ia]
+    f = np.where(span > 0, (clock[at] - clock[ia]) / np.where(span > 0, span, 1.0), (at - ia) / (ib - ia))
+    f = np.clip(f, 0.0, 1.0)
+    start = poses[ia] + f[:, None] * (poses[ib] - poses[ia])
+    start[:, 2] = wrap_angle(poses[ia, 2] + f * wrap_angle(poses[ib, 2] - poses[ia, 2]))
+    again = start.copy()
+    how_again = np.full(len(at), BETWEEN, dtype=np.int8)
+    fit_again = np.zeros(len(at))
+    _place_run(tiles, start, start, again, how_again, 0, len(at), (unplaced[int(k)] for k in at), match, limits,
+               np.ones(len(at), dtype=np.bool_), lambda k: None, fit_again)  # fmt: skip
+    better = (how_again == PLACED) & ((how[at] != PLACED) | (fit_again > fit[at]))
+    poses[at[better]] = again[better]
+    how[at[better]] = PLACED
+    fit[at[better]] = fit_again[better]
 
 
 def _cuts(n: int, anchored: np.ndarray | None, workers: int) -> list[int]:
@@ -189,10 +265,14 @@ def _place_run(
     limits: PlacementLimits,
     anchored: np.ndarray | None,
     report: Callable[[int], None],
+    fit: np.ndarray,
+    unplaced: dict[int, tuple[np.ndarray, float]] | None = None,
+    suspect: np.ndarray | None = None,
 ) -> None:
     """Place the scans a to b - 1 (`poses`, `how` written in place); scan a and the anchored ones start from
     their recorded pose, the others from the scan before as placed, moved as `path` moves. The scans are
-    read here and placed in batches by one compiled call each (`_place_batch`)."""
+    read here and placed in batches by one compiled call each (`_place_batch`); the returns of the scans not
+    placed, and of the `suspect` ones, are kept in `unplaced` (when given) for a second start."""
     anchor = np.ones(len(recorded), dtype=np.bool_) if anchored is None else np.asarray(anchored, dtype=np.bool_)
     parameters = match.parameters()
     grid = np.full(0, _EMPTY, dtype=np.int32)
@@ -218,10 +298,14 @@ def _place_run(
                 ends, dirs, score_inv, offsets, first, i, a, anchor, recorded, path, poses, how,
                 match.cell_m, match.kernel, match.min_p, match.margin_m, parameters, match.climb_stride,
                 match.fine_stride, limits.min_returns, limits.min_hit_fraction, limits.max_shift_m, limits.max_turn_rad,
-                grid, sums, touched,
+                grid, sums, touched, fit,
             )  # fmt: skip
             if i < len(pending):  # scan i's window needs a larger raster (as `MatchWorkspace.reserve`)
                 grid = np.full(int(cells * 1.25) + 1, _EMPTY, dtype=np.int32)
+        if unplaced is not None:
+            for j, scan in enumerate(pending):
+                if how[first + j] == BETWEEN or (suspect is not None and suspect[first + j]):
+                    unplaced[first + j] = scan
 
     read = a  # scans read so far: a to read - 1
     for pts, increment_rad in scans:
@@ -262,12 +346,13 @@ def _tile_ranges(key, rows, cols, origin_x, origin_y, tile_m, x0, y0, x1, y1, lo
 def _place_batch(tile_xy, tile_p, key, origin_x, origin_y, tile_m, rows, cols, ends, dirs, score_inv, offsets,
                  first, begin, a, anchored, recorded, path, poses, how, cell_m, kernel, min_p, margin, match,
                  climb_stride, fine_stride, min_returns, min_hit_fraction, max_shift, max_turn, grid, sums,
-                 touched):  # pragma: no cover - compiled  # fmt: skip
+                 touched, fit):  # pragma: no cover - compiled  # fmt: skip
     """Place the scans first, first + 1, ... (their returns ends[offsets[i]:offsets[i + 1]]) in turn, as
     `match_and_weigh` matches one particle: the start (recorded at anchored scans and at a, else the scan
     before as placed moved along `path`), the map's tiles under the start's window grown by max_shift,
     their points rasterised in the match window, the fine climb and the Gauss-Newton finish, the match
-    kept or not (`PlacementLimits`). `poses` and `how` written in place. Starts at the batch's scan `begin`;
+    kept or not (`PlacementLimits`). `poses`, `how` and `fit` (a kept match's score per return) written in
+    place. Starts at the batch's scan `begin`;
     returns (the scans of the batch done, 0), or (i, cells) when scan i's window needs a raster of that many
     cells, more than `grid` has: the caller grows it and calls again from i."""
     lo = np.empty(cols, dtype=np.int64)
@@ -325,6 +410,7 @@ def _place_batch(tile_xy, tile_p, key, origin_x, origin_y, tile_m, rows, cols, e
         if result[2] >= min_hit_fraction * (o1 - o0) and shift <= max_shift and turn <= max_turn:
             poses[k, 0], poses[k, 1], poses[k, 2] = pose[0], pose[1], pose[2]
             how[k] = 0  # PLACED
+            fit[k] = result[0] / (o1 - o0)
     return n, 0
 
 

@@ -39,6 +39,7 @@ SLAM_MAP = "/slam/map"
 SLAM_MAP_FINAL = "/slam/map_final"
 SLAM_STATS = "/slam/stats"
 SLAM_LANDMARKS = "/slam/landmarks"  # FastSLAM: landmark means and covariances (final, best particle)
+SLAM_GRAPH = "/slam/graph"  # the pose graph (final): nodes, sequential edges, loop closures kept and rejected
 SLAM_GRID = "/slam/grid"  # grid methods: occupancy grid (final, best particle)
 MAP_OCCUPANCY = "/map/occupancy"  # `gslam process --occupancy`: trinary navigation grid (final)
 
@@ -113,6 +114,25 @@ SLAM_LANDMARKS_SCHEMA: dict[str, Any] = {
         "x_m": {"type": "array", "items": {"type": "number"}},
         "y_m": {"type": "array", "items": {"type": "number"}},
         "cov": {"type": "array", "items": {"type": "array", "items": {"type": "number"}}},
+    },
+}
+
+SLAM_GRAPH_SCHEMA: dict[str, Any] = {
+    "title": "gslam.PoseGraph",
+    "description": "The back end's pose graph at the end of the run: the optimised node poses (x [m], y [m], "
+    "yaw [rad], in the map frame), the step of each node, its edges as node index pairs, and the loop "
+    "closures the optimisation kept and rejected with their match scores (0 to 1).",
+    "type": "object",
+    "properties": {
+        "x_m": {"type": "array", "items": {"type": "number"}},
+        "y_m": {"type": "array", "items": {"type": "number"}},
+        "yaw_rad": {"type": "array", "items": {"type": "number"}},
+        "step": {"type": "array", "items": {"type": "integer"}},
+        "sequential": {"type": "array", "items": {"type": "array", "items": {"type": "integer"}}},
+        "closures": {"type": "array", "items": {"type": "array", "items": {"type": "integer"}}},
+        "closure_scores": {"type": "array", "items": {"type": "number"}},
+        "rejected": {"type": "array", "items": {"type": "array", "items": {"type": "integer"}}},
+        "rejected_scores": {"type": "array", "items": {"type": "number"}},
     },
 }
 

@@ -349,6 +349,32 @@ def _place_every_scan(run: _OpenRun, times: _StepTimes, notice: Callable[[str], 
     return counts
 
 
+def _close_loops(
+    run: _OpenRun, times: _StepTimes, notice: Callable[[str], None] | None
+) -> tuple[dict | None, dict | None]:
+    """The pose graph under the final trajectory (`GSlamFilter.close_loops`, `loop_closure` on): (its record
+    for the result, the graph for the outputs in their frame); (None, None) when off, for other methods,
+    and for a run cut short."""
+    flt = run.runner.filter
+    if times.interrupted or not times.scan_indices or not getattr(run.cfg.filter, "loop_closure", False):
+        return None, None
+    if not hasattr(flt, "close_loops"):
+        return None, None
+    if notice is not None:
+        notice("closing loops: a pose graph under the trajectory, each node's scan searched in earlier submaps")
+    t0 = time.perf_counter()
+    indices = times.scan_indices
+    backend = flt.close_loops(lambda steps: run.runner.scans_at([indices[k] for k in steps]))
+    record = backend.summary()
+    record["seconds"] = round(time.perf_counter() - t0, 3)
+    graph = backend.graph()
+    mount = run.runner.mount
+    if mount is not None and graph["x_m"]:  # the outputs are the base's poses
+        base = mount.base_of(np.column_stack([graph["x_m"], graph["y_m"], graph["yaw_rad"]]))
+        graph["x_m"], graph["y_m"], graph["yaw_rad"] = base[:, 0].tolist(), base[:, 1].tolist(), base[:, 2].tolist()
+    return record, graph
+
+
 def _finish(run: _OpenRun, times: _StepTimes, notice: Callable[[str], None] | None) -> ProcessSummary:
     """Finish every output with the steps done (the result MCAP last, so that it records the others'
     figures); a signal meanwhile waits for it. An output that cannot be finished is dropped, the others
@@ -359,15 +385,17 @@ def _finish(run: _OpenRun, times: _StepTimes, notice: Callable[[str], None] | No
         # A signal from here on waits for the outputs to be finished (a second one aborts them).
         with interrupts.deferred():
             placement = _place_every_scan(run, times, notice)
+            closure, graph = _close_loops(run, times, notice)
             summary = _summary(run, times)
             result_meta = _result_metadata(run, times, summary)
             result_meta["placement"] = placement
+            result_meta["loop_closure"] = closure
             occupancy = None
             if run.cfg.occupancy and not times.interrupted and times.scan_indices:
                 if notice is not None:
                     notice("building the occupancy grid (every scan ray-cast at the final poses)")
                 occupancy = _occupancy(run.runner, run.log, times.scan_indices, run.cfg)
-            end = RunEnd(run.runner.output_filter, result_meta, occupancy)
+            end = RunEnd(run.runner.output_filter, result_meta, occupancy, graph)
             for w in reversed(run.writers):
                 try:
                     w.finish(end)

@@ -33,3 +33,13 @@ def test_mit_csail_relations_error_is_near_gmapping(mit_mcap, tmp_path):
     counts = McapInput(out).metadata()["result"]["placement"]
     assert counts["matched"] + counts["between_matched"] + counts["no_returns"] == counts["scans"] == 1988
     assert counts["matched"] > 0.98 * counts["scans"], counts  # measured: 4 to 18 left to their neighbours
+    # The back end's graph: in the record, in `gslam eval`'s notes and on /slam/graph, node for node.
+    closure = McapInput(out).metadata()["result"]["loop_closure"]
+    assert closure["nodes"] > 500 and closure["closures_kept"] > 10, closure  # measured: 685 nodes, 81 kept
+    assert any(n.startswith("loop closure:") for n in metrics["notes"]), metrics["notes"]
+    graphs = [m.value for m in McapInput(out).messages(["/slam/graph"])]
+    assert len(graphs) == 1
+    graph = graphs[0]
+    assert len(graph["x_m"]) == len(graph["step"]) == closure["nodes"]
+    assert len(graph["closures"]) == closure["closures_kept"]
+    assert len(graph["sequential"]) == closure["nodes"] - 1

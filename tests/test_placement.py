@@ -8,7 +8,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from gslam.placement import BETWEEN, NO_RETURNS, PLACED, between_matched, place_scans
+from gslam.placement import BETWEEN, NO_RETURNS, PLACED, between_matched, dead_reckoned, place_scans
 from gslam.scanmatch import MatchSettings
 from gslam.se2 import compose, inverse
 
@@ -177,6 +177,7 @@ def test_placement_counts_every_scan_once():
     ends = [(scan_from(q), 0.0) for q in truth]
     far = truth.copy()
     far[5, :2] += 2.0  # two metres off: a jump, not a correction
+    ends[5] = (scan_from(truth[5] + [0.0, 0.0, 1.0]), 0.0)  # and taken 57 degrees away: nothing matches
     placed = place_scans(xy, p, far, of(ends), SETTINGS)
     assert placed.how[5] == BETWEEN
     c = placed.counts()
@@ -267,3 +268,26 @@ def test_scans_between_neighbours_follow_the_motion_not_the_filters_jump():
     assert placed.how[19] == NO_RETURNS
     trans, rot = errors(placed.poses[19:20], truth[19:20])
     assert trans < 0.005 and rot < 0.2  # along the recorded poses: 1.4 deg
+
+
+def test_a_scan_whose_odometry_was_lost_is_placed_between_its_neighbours_in_time():
+    """The odometry misses one reading (no motion into scan 7, twice the motion into scan 8), as a log that
+    drops a message: from the scan before, scan 7 starts 60 cm behind, too far for its match to be kept,
+    and the path between its neighbours would leave it there. The second start, between scans 6 and 8 by
+    time, places it."""
+    xy, p = room_map()
+    truth = truth_path(14)
+    truth[:, 0] = 1.0 + 0.6 * np.arange(14)
+    motion = np.vstack([np.zeros(3), compose(inverse(truth[:-1]), truth[1:])])
+    lost = motion.copy()
+    lost[7] = 0.0
+    lost[8] = compose(motion[7], motion[8])
+    anchored = np.zeros(14, dtype=bool)
+    anchored[0] = True
+    ends = [(scan_from(q), 0.0) for q in truth]
+    recorded = dead_reckoned(truth[0], lost)
+    assert errors(recorded[7:8], truth[7:8])[0] > 0.55  # the test means something
+    placed = place_scans(xy, p, recorded, of(ends), SETTINGS, anchored=anchored, motion=lost, times=np.arange(14.0))
+    assert placed.how[7] == PLACED
+    trans, rot = errors(placed.poses, truth)
+    assert trans < 0.005 and rot < 0.1

@@ -187,6 +187,28 @@ RELATION_TOLERANCE_MS = 1.0
 """How close (ms) a relation's two times must be to steps' time stamps to be scored (`relations_error`)."""
 
 
+def loop_closure_note(closure: dict[str, Any]) -> str:
+    """One line on the back end's pose graph (the result's `loop_closure` record)."""
+
+    def score(v: Any) -> str:
+        return "-" if v is None else f"{v:.2f}"
+
+    return (
+        f"loop closure: {closure.get('nodes')} nodes, {closure.get('searches')} searches, "
+        f"{closure.get('closures_kept')} closures kept (mean score {score(closure.get('kept_score_mean'))}), "
+        f"{closure.get('closures_rejected')} rejected (mean score {score(closure.get('rejected_score_mean'))}); "
+        f"search {closure.get('search_s')} s, {closure.get('optimisations')} optimisations "
+        f"{closure.get('optimise_s')} s, {closure.get('seconds')} s in all; "
+        + (
+            f"the front end missed {closure.get('closures_missed_by_front_end')} of the closures: trajectory "
+            "and map on the optimised graph"
+            if closure.get("applied")
+            else f"the front end missed {closure.get('closures_missed_by_front_end')} of the closures: "
+            "they confirm it, trajectory and map left as they were"
+        )
+    )
+
+
 def relations_note(given: int, matched: int, steps: int) -> str:
     """How many of the reference's relations were scored: a relation counts only when both its times match
     a step's sensor time stamp, so a log whose relations do not match its scans (another log's relations
@@ -250,6 +272,9 @@ def evaluate_result(result: Path, reference: Path | None = None) -> dict[str, An
             f"{placement.get('between_matched')} placed between matched neighbours, "
             f"{placement.get('no_returns')} without returns"
         )
+    closure = r.get("loop_closure")
+    if isinstance(closure, dict):
+        notes.append(loop_closure_note(closure))
     out["ms_per_update_mean"] = r.get("ms_per_update_mean")
     out["ms_per_step_median"] = r.get("ms_per_step_filter_median")
     out["real_time_factor"] = r.get("real_time_factor")

@@ -122,6 +122,8 @@ class McapResultWriter:
         if hasattr(flt, "occupancy"):
             prob, origin, cell = flt.occupancy(best)
             self.writer.write_proto(ch.SLAM_GRID, ch.occupancy_grid(t_last, prob, origin, cell), ns)
+        if end.graph is not None:
+            self.writer.write_json(ch.SLAM_GRAPH, "gslam.PoseGraph", ch.SLAM_GRAPH_SCHEMA, end.graph, ns)
         self.writer.add_metadata("result", end.result)
         return self.writer.finish()
 

@@ -244,6 +244,16 @@ class Recorder:
                     [final["online"]], colors=[[60, 120, 255]], radii=ui(ONLINE_PATH_RADIUS_UI), draw_order=39.0
                 ),
             )
+            graph = final.get("graph")
+            if graph is not None:
+                rec.log(entity.GRAPH_NODES, rr.Points2D(graph["nodes"], colors=[[200, 200, 200]], radii=ui(2.0)))
+                for path, color in (
+                    (entity.GRAPH_SEQUENTIAL, [150, 150, 150]),
+                    (entity.GRAPH_CLOSURES, [60, 220, 90]),
+                    (entity.GRAPH_REJECTED, [230, 50, 50]),
+                ):
+                    key = path.rsplit("/", 1)[1]
+                    rec.log(path, rr.LineStrips2D(graph[key], colors=[color], radii=ui(1.0), draw_order=41.0))
         self.finish_file()
 
     def close(self) -> None:

@@ -164,6 +164,7 @@ class RerunResultWriter:
                 "occupancy_image": None,
                 "trajectory": np.asarray(traj[:, :2]),
                 "online": np.asarray(self.online),
+                "graph": None if end.graph is None else graph_segments(end.graph),
             }
             if hasattr(flt, "occupancy"):
                 prob, _, _ = flt.occupancy(best)
@@ -181,3 +182,19 @@ class RerunResultWriter:
         finally:
             if self.tmp is not None:
                 self.tmp.unlink(missing_ok=True)
+
+
+def graph_segments(graph: dict[str, Any]) -> dict[str, np.ndarray]:
+    """The pose graph as line segments (K, 2, 2) per kind of edge, and the nodes (N, 2), for the recording."""
+    xy = np.column_stack([graph["x_m"], graph["y_m"]]).reshape(-1, 2)
+
+    def segments(pairs: list[list[int]]) -> np.ndarray:
+        ij = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        return np.stack([xy[ij[:, 0]], xy[ij[:, 1]]], axis=1)
+
+    return {
+        "nodes": xy,
+        "sequential": segments(graph["sequential"]),
+        "closures": segments(graph["closures"]),
+        "rejected": segments(graph["rejected"]),
+    }

@@ -49,6 +49,8 @@ class RunEnd:
     """The result's record (steps, times, memory, interrupted); a writer may add its own figures to it
     before the writers after it finish."""
     occupancy: OccupancyMap | None = None
+    graph: dict[str, Any] | None = None
+    """The back end's pose graph (`PoseGraphBackEnd.graph`, in the outputs' frame), when loop closure ran."""
 
 
 class ResultWriter(Protocol):

@@ -1,0 +1,392 @@
+"""The back end under the filter: a pose graph over the run, closed by scans matched far back in time.
+
+Nodes are scans of the front end's trajectory (the placed one, once the run is over), one each
+`node_travel_m` of path or `node_turn_rad` of turn. Consecutive nodes are tied by the front end's relative
+pose (`sequential` edges, their uncertainty growing with the motion between them). Every `submap_nodes`
+nodes make a submap: their scans drawn in the first one's frame at the front end's poses
+(`gslam.loopclosure.Submap`). Every `search_every`-th node's scan is searched for in the submaps that lie
+near its current estimate but were left at least `min_separation_m` of travel before (closer ones are the
+filter's own business): the whole window of `ClosureSettings` is searched by branch and bound, not only a
+step around the estimate, so a closure is found even where the drift has grown to metres.
+
+A match is checked three times before it counts: it must score `min_score`; no pose `ambiguity_m` away
+may score nearly as well (`gslam.loopclosure.Match.ambiguous`: corridors, repeated rooms); and another
+node's closure near it in time must agree with it (`confirm_nodes`). It then enters the graph under a
+Huber loss; the graph is optimised (`gslam.posegraph.optimise_robust`, which drops the closures that still
+disagree with the rest) as soon as a closure the estimate misses enters, else at the end.
+
+The optimised node poses correct the whole trajectory (`correct_trajectory`: a scan between two nodes
+keeps its front-end pose relative to each, the two blended by its place between them) and the map
+(`correct_points`), but only where the front end is wrong: when enough of the closures are missed by
+the front end's own poses (`min_inconsistent`); otherwise the closures confirm it and it is left as it was
+(`finish`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gslam.loopclosure import ClosureSettings, Submap, match_scan, voxel_filter
+from gslam.motion import wrap_angle
+from gslam.posegraph import CLOSURE, SEQUENTIAL, Edge, optimise_robust, residuals
+from gslam.scan import transform_points
+from gslam.se2 import compose, inverse
+
+
+@dataclass(frozen=True)
+class BackEndSettings:
+    """The back end's defaults (docs/CHOICES.md, "Back end")."""
+
+    node_travel_m: float = 0.5
+    node_turn_rad: float = 0.5
+    submap_nodes: int = 10
+    """Nodes per submap."""
+    min_separation_m: float = 20.0
+    """Travel between a submap's last node and a node searched in it: nearer in time is the filter's job."""
+    search_radius_m: float = 5.0
+    """A submap is a candidate when one of its nodes is this near the node's current estimate."""
+    max_candidates: int = 1
+    """Submaps searched per node (the nearest ones)."""
+    search_every: int = 2
+    """Search for closures at every n-th node."""
+    sequential_sigma_xy_m: float = 0.02
+    sequential_sigma_xy_per_m: float = 0.02
+    sequential_sigma_phi_rad: float = 0.005
+    sequential_sigma_phi_per_rad: float = 0.005
+    confirm_nodes: int = 6
+    confirm_m: float = 0.2
+    confirm_rad: float = 0.05
+    """A closure enters the graph once another one, from a node at most `confirm_nodes` away, agrees with
+    it: both move their node to within `confirm_m` and `confirm_rad` of each other. A single match, however
+    good its score, may be a look-alike place; a place found again from the next nodes is not."""
+    closure_sigma_xy_m: float = 0.05
+    closure_sigma_phi_rad: float = 0.01
+    optimise_chi2: float = 9.0
+    """The graph is optimised as soon as a closure enters it that the current estimate misses by more than
+    this (its whitened squared residual: 3 sigma); the closures the estimate already agrees with wait for
+    the end of the run (or for `optimise_closures` of them): optimising for them would move little."""
+    optimise_closures: int = 50
+    inconsistent_chi2: float = 9.0
+    min_inconsistent: int = 5
+    min_inconsistent_fraction: float = 0.05
+    """The graph corrects the front end only where the front end is wrong: when at least `min_inconsistent`
+    of the closures kept, and `min_inconsistent_fraction` of them, are missed by the front end's own poses
+    by more than `inconsistent_chi2` (whitened squared residual: 3 sigma; a right closure, measured with
+    the sigmas assumed, is missed so in 3 % of cases). Otherwise the closures confirm the front end and
+    the trajectory is left as it was: its local precision is finer than a closure's (docs/CHOICES.md)."""
+    huber_k: float = 1.0
+    reject_chi2: float = 16.0
+    cached_submaps: int = 24
+    """Submap fields kept built (each a few MB); the others are rebuilt when searched again."""
+    closure: ClosureSettings = field(default_factory=ClosureSettings)
+
+
+@dataclass
+class ClosureRecord:
+    """A closure searched and found: node, submap, its first node, the match's score and pose, and whether
+    the optimisation kept it."""
+
+    node: int
+    submap: int
+    anchor: int
+    score: float
+    measured: np.ndarray
+    edge: Edge
+    kept: bool = False
+    """In the graph (confirmed) and not rejected by the optimisation."""
+    confirmed: bool = False
+    rejected: bool = False
+
+
+class PoseGraphBackEnd:
+    """Nodes added one at a time (`add_node`), closures searched as they come, the graph optimised."""
+
+    def __init__(self, settings: BackEndSettings = BackEndSettings()) -> None:
+        self.settings = settings
+        self.steps: list[int] = []  # the step (scan index in the run) of each node
+        self.front: list[np.ndarray] = []  # the front end's pose of each node
+        self.points: list[np.ndarray] = []  # each node's returns (sensor frame), voxel filtered
+        self.travel: list[float] = []  # path length up to each node
+        self.estimate = np.empty((0, 3))  # the graph's current pose of each node
+        self.edges: list[Edge] = []
+        self.submaps: list[tuple[int, int]] = []  # node ranges [a, b) of the finished submaps
+        self._fields: OrderedDict[int, Submap] = OrderedDict()
+        self.closures: list[ClosureRecord] = []
+        self.searches = 0
+        self.ambiguous = 0  # searches whose best match had a rival elsewhere in the window
+        self.search_s = 0.0
+        self.optimisations: list[float] = []  # seconds each
+        self._unoptimised = 0  # closures added since the last optimisation
+        self._urgent = False  # a closure waits that the estimate misses (`optimise_chi2`)
+        self.inconsistent = 0  # closures kept that the front end misses (`finish`)
+        self.applied = False  # whether the optimised graph corrects the front end (`finish`)
+
+    def __len__(self) -> int:
+        return len(self.steps)
+
+    def due(self, pose: np.ndarray) -> bool:
+        """Whether the front end's `pose` has moved far enough from the last node to make a new one."""
+        if not self.front:
+            return True
+        last = self.front[-1]
+        s = self.settings
+        return bool(
+            math.hypot(pose[0] - last[0], pose[1] - last[1]) >= s.node_travel_m
+            or abs(wrap_angle(pose[2] - last[2])) >= s.node_turn_rad
+        )
+
+    def add_node(self, step: int, pose: np.ndarray, points_xy: np.ndarray) -> None:
+        """A node at the front end's `pose` for the run's scan `step`, with its returns `points_xy` (sensor
+        frame); ties it to the node before, closes a submap when one is full, searches for closures."""
+        s = self.settings
+        pose = np.asarray(pose, dtype=float)
+        rng = np.hypot(points_xy[:, 0], points_xy[:, 1]) if len(points_xy) else np.empty(0)
+        within = np.asarray(points_xy, dtype=float).reshape(-1, 2)[rng <= s.closure.max_range_m]
+        pts = voxel_filter(within, s.closure.voxel_m)
+        k = len(self.steps)
+        if k:
+            prev = self.front[-1]
+            rel = compose(inverse(prev), pose)
+            dist = float(np.hypot(rel[0], rel[1]))
+            turn = abs(float(rel[2]))
+            sig = np.array(
+                [
+                    s.sequential_sigma_xy_m + s.sequential_sigma_xy_per_m * dist,
+                    s.sequential_sigma_xy_m + s.sequential_sigma_xy_per_m * dist,
+                    s.sequential_sigma_phi_rad + s.sequential_sigma_phi_per_rad * turn,
+                ]
+            )
+            self.edges.append(Edge(k - 1, k, rel, sig, SEQUENTIAL))
+            self.travel.append(self.travel[-1] + dist)
+            est = compose(self.estimate[-1], rel)
+        else:
+            self.travel.append(0.0)
+            est = pose
+        self.steps.append(int(step))
+        self.front.append(pose)
+        self.points.append(pts)
+        self.estimate = np.vstack([self.estimate, est[None]])
+        first = self.submaps[-1][1] if self.submaps else 0
+        if k + 1 - first >= s.submap_nodes:
+            self.submaps.append((first, k + 1))
+        if k % s.search_every == 0:
+            self._search(k)
+
+    def _field(self, m: int) -> Submap:
+        sub = self._fields.get(m)
+        if sub is not None:
+            self._fields.move_to_end(m)
+            return sub
+        a, b = self.submaps[m]
+        base = inverse(self.front[a])
+        parts = [transform_points(compose(base, self.front[n]), self.points[n]) for n in range(a, b)]
+        pts = np.concatenate(parts) if parts else np.empty((0, 2))
+        sub = Submap.build(pts if len(pts) else np.zeros((1, 2)), self.settings.closure)
+        self._fields[m] = sub
+        if len(self._fields) > self.settings.cached_submaps:
+            self._fields.popitem(last=False)
+        return sub
+
+    def _candidates(self, k: int) -> list[int]:
+        s = self.settings
+        here = self.estimate[k, :2]
+        found: list[tuple[float, int]] = []
+        for m, (a, b) in enumerate(self.submaps):
+            if self.travel[k] - self.travel[b - 1] < s.min_separation_m:
+                continue
+            d = float(np.min(np.hypot(*(self.estimate[a:b, :2] - here).T)))
+            if d <= s.search_radius_m:
+                found.append((d, m))
+        found.sort()
+        return [m for _, m in found[: s.max_candidates]]
+
+    def _search(self, k: int) -> None:
+        s = self.settings
+        pts = self.points[k]
+        if len(pts) < 10:
+            return
+        for m in self._candidates(k):
+            a = self.submaps[m][0]
+            t0 = time.perf_counter()
+            guess = compose(inverse(self.estimate[a]), self.estimate[k])
+            match = match_scan(self._field(m), pts, guess, s.closure)
+            self.searches += 1
+            self.search_s += time.perf_counter() - t0
+            if match is None:
+                continue
+            if match.ambiguous:
+                self.ambiguous += 1
+                continue
+            sig = np.array([s.closure_sigma_xy_m, s.closure_sigma_xy_m, s.closure_sigma_phi_rad])
+            edge = Edge(a, k, match.pose, sig, CLOSURE, match.score)
+            record = ClosureRecord(k, m, a, match.score, match.pose, edge)
+            self.closures.append(record)
+            self._confirm(record)
+        if self._urgent or self._unoptimised >= s.optimise_closures:
+            self.optimise()
+
+    def _where(self, c: ClosureRecord) -> np.ndarray:
+        """Where closure `c` puts its node, by the current estimate of its anchor."""
+        return compose(self.estimate[c.anchor], c.measured)
+
+    def _confirm(self, new: ClosureRecord) -> None:
+        """Put `new` and the closures near it in time that agree with it into the graph (`confirm_nodes`)."""
+        s = self.settings
+        agree = []
+        for c in self.closures[:-1]:
+            if c.rejected or abs(c.node - new.node) > s.confirm_nodes:
+                continue
+            # both closures' corrections, carried to the new node along the current estimate
+            moved = compose(self._where(c), compose(inverse(self.estimate[c.node]), self.estimate[new.node]))
+            here = self._where(new)
+            if (
+                math.hypot(moved[0] - here[0], moved[1] - here[1]) <= s.confirm_m
+                and abs(wrap_angle(moved[2] - here[2])) <= s.confirm_rad
+            ):
+                agree.append(c)
+        if not agree:
+            return
+        for c in [*agree, new]:
+            if c.confirmed:
+                continue
+            c.confirmed = c.kept = True
+            self.edges.append(c.edge)
+            self._unoptimised += 1
+            if residuals(self.estimate, [c.edge])[0] > s.optimise_chi2:
+                self._urgent = True
+
+    def optimise(self) -> None:
+        """Optimise the graph from its current estimate; closures it rejects are taken out of the graph."""
+        s = self.settings
+        result = optimise_robust(self.estimate, self.edges, s.huber_k, s.reject_chi2)
+        self.optimisations.append(result.seconds)
+        if result.rejected:
+            gone = set(result.rejected)
+            gone_edges = {id(self.edges[k]) for k in gone}
+            for rec in self.closures:
+                if id(rec.edge) in gone_edges:
+                    rec.kept = False
+                    rec.rejected = True
+            self.edges = [e for k, e in enumerate(self.edges) if k not in gone]
+        self.estimate = result.poses
+        self._unoptimised = 0
+        self._urgent = False
+
+    def finish(self) -> None:
+        """Optimise once more if closures wait; then decide whether the graph corrects the front end at all
+        (`min_inconsistent`): if not, the node estimates are set back to the front end's poses."""
+        if self._unoptimised:
+            self.optimise()
+        s = self.settings
+        kept = [c.edge for c in self.closures if c.kept]
+        misses = residuals(np.asarray(self.front).reshape(-1, 3), kept) if kept else np.empty(0)
+        self.inconsistent = int(np.sum(misses > s.inconsistent_chi2))
+        self.applied = self.inconsistent >= s.min_inconsistent and self.inconsistent >= (
+            s.min_inconsistent_fraction * len(kept)
+        )
+        if not self.applied:
+            self.estimate = np.asarray(self.front, dtype=float).reshape(-1, 3).copy()
+
+    def node_steps(self, front_poses: np.ndarray) -> np.ndarray:
+        """The steps of a trajectory (T, 3) that make nodes: the first, then each one that has moved
+        `node_travel_m` or turned `node_turn_rad` from the last node (as `due`)."""
+        s = self.settings
+        out = []
+        last = None
+        for t, pose in enumerate(np.asarray(front_poses, dtype=float)):
+            if (
+                last is None
+                or math.hypot(pose[0] - last[0], pose[1] - last[1]) >= s.node_travel_m
+                or abs(wrap_angle(pose[2] - last[2])) >= s.node_turn_rad
+            ):
+                out.append(t)
+                last = pose
+        return np.asarray(out, dtype=np.int64)
+
+    def correct_points(self, xy: np.ndarray) -> np.ndarray:
+        """Map points (K, 2, in the front end's frame) moved with the graph: each with the node whose
+        scan's returns (at the front end's pose) lie nearest it."""
+        from scipy.spatial import cKDTree
+
+        if len(xy) == 0 or not self.steps:
+            return xy.copy()
+        ends = [transform_points(self.front[k], self.points[k]) for k in range(len(self.steps))]
+        owner = np.concatenate([np.full(len(e), k) for k, e in enumerate(ends)])
+        if len(owner) == 0:
+            return xy.copy()
+        _, nearest = cKDTree(np.concatenate(ends)).query(xy)
+        node = owner[nearest]
+        move = compose(np.asarray(self.estimate)[node], inverse(np.asarray(self.front)[node]))
+        c, s = np.cos(move[:, 2]), np.sin(move[:, 2])
+        return np.column_stack([move[:, 0] + c * xy[:, 0] - s * xy[:, 1], move[:, 1] + s * xy[:, 0] + c * xy[:, 1]])
+
+    def graph(self) -> dict:
+        """The graph for the outputs (`SLAM_GRAPH_SCHEMA`): optimised node poses, steps, edges, closures."""
+        kept = [c for c in self.closures if c.kept]
+        rejected = [c for c in self.closures if c.rejected]
+        est = np.asarray(self.estimate).reshape(-1, 3)
+        return {
+            "x_m": est[:, 0].tolist(),
+            "y_m": est[:, 1].tolist(),
+            "yaw_rad": est[:, 2].tolist(),
+            "step": [int(s) for s in self.steps],
+            "sequential": [[e.i, e.j] for e in self.edges if e.kind == SEQUENTIAL],
+            "closures": [[c.anchor, c.node] for c in kept],
+            "closure_scores": [round(c.score, 4) for c in kept],
+            "rejected": [[c.anchor, c.node] for c in rejected],
+            "rejected_scores": [round(c.score, 4) for c in rejected],
+        }
+
+    def summary(self) -> dict:
+        """What the result records of the graph: sizes, closures (found, kept, rejected, their scores)
+        and the time of the searches and the optimisations."""
+        kept = [c for c in self.closures if c.kept]
+        rejected = [c for c in self.closures if c.rejected]
+        return {
+            "nodes": len(self.steps),
+            "submaps": len(self.submaps),
+            "sequential_edges": sum(e.kind == SEQUENTIAL for e in self.edges),
+            "searches": self.searches,
+            "ambiguous": self.ambiguous,
+            "closures_found": len(self.closures),
+            "closures_kept": len(kept),
+            "closures_unconfirmed": sum(not c.confirmed for c in self.closures),
+            "closures_rejected": len(rejected),
+            "closures_missed_by_front_end": self.inconsistent,
+            "applied": self.applied,
+            "kept_score_mean": float(np.mean([c.score for c in kept])) if kept else None,
+            "rejected_score_mean": float(np.mean([c.score for c in rejected])) if rejected else None,
+            "search_s": round(self.search_s, 3),
+            "optimisations": len(self.optimisations),
+            "optimise_s": round(float(sum(self.optimisations)), 3),
+        }
+
+    def correct_trajectory(self, front_poses: np.ndarray) -> np.ndarray:
+        """Every step's pose (T, 3) moved with the optimised nodes: each scan's front-end pose relative to
+        the node before and the node after, blended by its place between them."""
+        return correct_between(front_poses, np.asarray(self.steps), np.asarray(self.front), self.estimate)
+
+
+def correct_between(
+    front: np.ndarray, node_steps: np.ndarray, node_front: np.ndarray, node_est: np.ndarray
+) -> np.ndarray:
+    """`front` (T, 3) corrected by the nodes: scan t's pose relative to its nodes kept, blended."""
+    t = np.arange(len(front))
+    if len(node_steps) == 0:
+        return front.copy()
+    before = np.clip(np.searchsorted(node_steps, t, side="right") - 1, 0, len(node_steps) - 1)
+    after = np.clip(before + 1, 0, len(node_steps) - 1)
+    via_a = compose(node_est[before], compose(inverse(node_front[before]), front))
+    via_b = compose(node_est[after], compose(inverse(node_front[after]), front))
+    span = (node_steps[after] - node_steps[before]).astype(float)
+    f = np.where(span > 0, (t - node_steps[before]) / np.where(span > 0, span, 1.0), 0.0)
+    f = np.clip(f, 0.0, 1.0)
+    out = via_a.copy()
+    out[:, :2] = (1 - f)[:, None] * via_a[:, :2] + f[:, None] * via_b[:, :2]
+    out[:, 2] = wrap_angle(via_a[:, 2] + f * wrap_angle(via_b[:, 2] - via_a[:, 2]))
+    return out
