@@ -75,6 +75,8 @@ class SuiteRun:
     update_ratio: float = float("nan")
     writer_peak_mb: float = float("nan")
     """Peak resident memory of the Rerun recording's child writer (`pipelines.outputs.rerun_recorder`)."""
+    finish_s: tuple[float, float] = (float("nan"), float("nan"))
+    """Seconds of the run's end: every scan placed by the final map, and the back end (`loop_closure`)."""
 
 
 @dataclass
@@ -213,7 +215,13 @@ def timed_run(input_mcap: Path, particles: int, seed: int, threads: int, workdir
         update_ms,
         ratio,
         float(run.result.get("peak_rss_mb_rrd_writer") or float("nan")),
+        (_seconds(run.result.get("placement")), _seconds(run.result.get("loop_closure"))),
     )
+
+
+def _seconds(record: dict | None) -> float:
+    """A finishing step's seconds from its record in the result (nan where it did not run)."""
+    return float(record["seconds"]) if isinstance(record, dict) and "seconds" in record else float("nan")
 
 
 def ingest_to(log: Path, workdir: Path) -> Path:
@@ -320,6 +328,16 @@ def freiburg_section(
     return "\n".join(lines) + "\n"
 
 
+def _finish_cell(runs: list[SuiteRun]) -> str:
+    """Median seconds of the placement and of the back end over `runs` ('-' where a step did not run)."""
+
+    def median(values: list[float]) -> str:
+        values = [v for v in values if not math.isnan(v)]
+        return f"{statistics.median(values):.1f}" if values else "-"
+
+    return f"{median([r.finish_s[0] for r in runs])} / {median([r.finish_s[1] for r in runs])}"
+
+
 def speed_section(
     runs: list[SuiteRun],
     command: str,
@@ -364,7 +382,9 @@ def speed_section(
         "  90th percentile). Update ratio: median update time over the last tenth of the log / over its second",
         "  tenth (flat time per update: near 1). Peak MB: the maximum resident set of the filter's process",
         "  (`gslam process`) + that of the Rerun recording's child writer it starts",
-        "  (`pipelines.outputs.rerun_recorder`).",
+        "  (`pipelines.outputs.rerun_recorder`). Placement / back end: the seconds of the run's end spent",
+        "  placing every scan by the final map and closing loops (`placement`, `loop_closure` in the result;",
+        "  medians, within the wall).",
         *gm_note,
         *(
             [
@@ -379,10 +399,10 @@ def speed_section(
         ),
         *lama_note([0], bool(lama_runs), slam2d_each_repeat=True),
         "",
-        "| log | N | threads | wall (s) | ms per update median / p90 | update ratio | peak MB (filter + rrd) | error "
-        "| GMapping wall (s), peak MB | ratio | LaMa PF wall (s), peak MB (ratio) | LaMa Slam2D wall (s), peak MB "
-        "(ratio) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| log | N | threads | wall (s) | placement / back end (s) | ms per update median / p90 | update ratio "
+        "| peak MB (filter + rrd) | error | GMapping wall (s), peak MB | ratio | LaMa PF wall (s), peak MB (ratio) "
+        "| LaMa Slam2D wall (s), peak MB (ratio) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     keys = list(dict.fromkeys((r.log, r.particles, r.threads) for r in runs))
     for log, n, k in keys:
@@ -413,7 +433,8 @@ def speed_section(
             )
         shown = k or f"{os.cpu_count()} (default)"
         lines.append(
-            f"| {log} | {n} | {shown} | {wall:.1f} | {statistics.median(upd):.1f} / {statistics.median(p90):.1f} "
+            f"| {log} | {n} | {shown} | {wall:.1f} | {_finish_cell(sel)} "
+            f"| {statistics.median(upd):.1f} / {statistics.median(p90):.1f} "
             f"| {statistics.median(r.update_ratio for r in sel):.2f} | {max(r.peak_mb for r in sel):.0f} + "
             f"{max(r.writer_peak_mb for r in sel):.0f} | {err_s} "
             f"| {gm_shown} | {f'{gm / wall:.2f}' if gm else '-'} | {' | '.join(lama_cells)} |"
