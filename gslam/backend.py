@@ -81,7 +81,7 @@ class BackEndSettings:
     the trajectory is left as it was: its local precision is finer than a closure's (docs/CHOICES.md)."""
     huber_k: float = 1.0
     reject_chi2: float = 16.0
-    cached_submaps: int = 24
+    cached_submaps: int = 4
     """Submap fields kept built (each a few MB); the others are rebuilt when searched again."""
     closure: ClosureSettings = field(default_factory=ClosureSettings)
 

@@ -170,10 +170,10 @@ class GSlamFilter:
         self, scans: Callable[[list[int]], Iterable[Scan]], settings: BackEndSettings | None = None
     ) -> PoseGraphBackEnd:
         """The pose graph under the best particle's trajectory (placed, if `place_every_scan` ran) closed by
-        loop closures (`gslam.backend`); `best_trajectory()` then gives the optimised trajectory and
-        `map_points(best)` the best particle's map moved with it (each point with the node whose scan
-        returns lie nearest it). `scans(steps)`: the run's scans at those steps (increasing). The maps and
-        the particles are not changed."""
+        loop closures (`gslam.backend`); where the graph corrects the front end (`PoseGraphBackEnd.applied`),
+        `best_trajectory()` then gives the optimised trajectory and `map_points(best)` the best particle's
+        map moved with it (each point with the node whose scan returns lie nearest it). `scans(steps)`: the
+        run's scans at those steps (increasing). The maps and the particles are not changed."""
         best = self.best_particle()
         times, front = self.best_trajectory()
         backend = PoseGraphBackEnd(settings or BackEndSettings())
@@ -181,11 +181,11 @@ class GSlamFilter:
         for step, scan in zip(steps, scans(list(steps)), strict=True):
             backend.add_node(step, front[step], _end_points(self._as_observed(scan)))
         backend.finish()
-        corrected = backend.correct_trajectory(front)
-        xy, p = self.map_points(best)
-        moved = backend.correct_points(np.asarray(xy, dtype=float))
-        self.placed = (times, corrected)
-        self._corrected_map = (best, moved.astype(np.asarray(xy).dtype), p)
+        if backend.applied:  # else the closures confirm the front end: its trajectory and map stand
+            xy, p = self.map_points(best)
+            moved = backend.correct_points(np.asarray(xy, dtype=float))
+            self.placed = (times, backend.correct_trajectory(front))
+            self._corrected_map = (best, moved.astype(np.asarray(xy).dtype), p)
         return backend
 
     def map_points(self, particle: int) -> tuple[np.ndarray, np.ndarray]:
