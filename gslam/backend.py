@@ -35,7 +35,7 @@ from gslam.loopclosure import ClosureSettings, Submap, match_scan, voxel_filter
 from gslam.motion import wrap_angle
 from gslam.posegraph import CLOSURE, SEQUENTIAL, Edge, optimise_robust, residuals
 from gslam.scan import transform_points
-from gslam.se2 import compose, inverse
+from gslam.se2 import compose, interpolate, inverse
 
 
 @dataclass(frozen=True)
@@ -88,19 +88,27 @@ class BackEndSettings:
 
 @dataclass
 class ClosureRecord:
-    """A closure searched and found: node, submap, its first node, the match's score and pose, and whether
-    the optimisation kept it."""
+    """A closure searched and found: its edge (from the submap's first node, the anchor, to the node; the
+    match's pose and score), the submap, and whether it was confirmed, kept or rejected."""
 
-    node: int
-    submap: int
-    anchor: int
-    score: float
-    measured: np.ndarray
     edge: Edge
+    submap: int
     kept: bool = False
     """In the graph (confirmed) and not rejected by the optimisation."""
     confirmed: bool = False
     rejected: bool = False
+
+    @property
+    def node(self) -> int:
+        return self.edge.j
+
+    @property
+    def anchor(self) -> int:
+        return self.edge.i
+
+    @property
+    def score(self) -> float:
+        return self.edge.score
 
 
 class PoseGraphBackEnd:
@@ -128,17 +136,6 @@ class PoseGraphBackEnd:
 
     def __len__(self) -> int:
         return len(self.steps)
-
-    def due(self, pose: np.ndarray) -> bool:
-        """Whether the front end's `pose` has moved far enough from the last node to make a new one."""
-        if not self.front:
-            return True
-        last = self.front[-1]
-        s = self.settings
-        return bool(
-            math.hypot(pose[0] - last[0], pose[1] - last[1]) >= s.node_travel_m
-            or abs(wrap_angle(pose[2] - last[2])) >= s.node_turn_rad
-        )
 
     def add_node(self, step: int, pose: np.ndarray, points_xy: np.ndarray) -> None:
         """A node at the front end's `pose` for the run's scan `step`, with its returns `points_xy` (sensor
@@ -224,7 +221,7 @@ class PoseGraphBackEnd:
                 continue
             sig = np.array([s.closure_sigma_xy_m, s.closure_sigma_xy_m, s.closure_sigma_phi_rad])
             edge = Edge(a, k, match.pose, sig, CLOSURE, match.score)
-            record = ClosureRecord(k, m, a, match.score, match.pose, edge)
+            record = ClosureRecord(edge, m)
             self.closures.append(record)
             self._confirm(record)
         if self._urgent or self._unoptimised >= s.optimise_closures:
@@ -232,7 +229,7 @@ class PoseGraphBackEnd:
 
     def _where(self, c: ClosureRecord) -> np.ndarray:
         """Where closure `c` puts its node, by the current estimate of its anchor."""
-        return compose(self.estimate[c.anchor], c.measured)
+        return compose(self.estimate[c.anchor], c.edge.measured)
 
     def _confirm(self, new: ClosureRecord) -> None:
         """Put `new` and the closures near it in time that agree with it into the graph (`confirm_nodes`)."""
@@ -294,7 +291,7 @@ class PoseGraphBackEnd:
 
     def node_steps(self, front_poses: np.ndarray) -> np.ndarray:
         """The steps of a trajectory (T, 3) that make nodes: the first, then each one that has moved
-        `node_travel_m` or turned `node_turn_rad` from the last node (as `due`)."""
+        `node_travel_m` or turned `node_turn_rad` from the last node."""
         s = self.settings
         out = []
         last = None
@@ -385,8 +382,4 @@ def correct_between(
     via_b = compose(node_est[after], compose(inverse(node_front[after]), front))
     span = (node_steps[after] - node_steps[before]).astype(float)
     f = np.where(span > 0, (t - node_steps[before]) / np.where(span > 0, span, 1.0), 0.0)
-    f = np.clip(f, 0.0, 1.0)
-    out = via_a.copy()
-    out[:, :2] = (1 - f)[:, None] * via_a[:, :2] + f[:, None] * via_b[:, :2]
-    out[:, 2] = wrap_angle(via_a[:, 2] + f * wrap_angle(via_b[:, 2] - via_a[:, 2]))
-    return out
+    return interpolate(via_a, via_b, np.clip(f, 0.0, 1.0))

@@ -186,7 +186,7 @@ def _score_at(pyr, h, ci, cj, a, dx, dy):  # pragma: no cover - compiled
 @njit(cache=True, nogil=True)
 def _branch_and_bound(
     pyr, ox, oy, cell, pts, headings, ex, ey, w, min_score, cut_x, cut_y, cut_r
-):  # pragma: no cover - compiled  # noqa: E501
+):  # pragma: no cover - compiled
     """Hess et al. (2016) Algorithm 3 over headings x translations [-w, w]^2 cells: (score, heading index,
     dx, dy) of the best candidate scoring at least min_score; heading index -1 when none does. With
     cut_r >= 0, translations within cut_r cells of (cut_x, cut_y) are left out (whole branches inside it

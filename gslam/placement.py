@@ -31,11 +31,11 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from gslam.motion import wrap_angle, wrap_angle_scalar
+from gslam.motion import wrap_angle_scalar
 from gslam.pointmap import MAP_DTYPE
 from gslam.scan import end_point_box
 from gslam.scanmatch import _EMPTY, MatchSettings, _fine_climb, _finish, _rasterise_range, _to_means
-from gslam.se2 import between_compiled, compose, compose_compiled, compose_scalar, inverse
+from gslam.se2 import between_compiled, compose, compose_compiled, compose_scalar, interpolate, inverse
 
 PLACED, BETWEEN, NO_RETURNS = 0, 1, 2
 """How a scan's pose was set: matched against the map; between matched neighbours (its match was not
@@ -219,8 +219,7 @@ def _place_again_between(
     span = clock[ib] - clock[ia]
     f = np.where(span > 0, (clock[at] - clock[ia]) / np.where(span > 0, span, 1.0), (at - ia) / (ib - ia))
     f = np.clip(f, 0.0, 1.0)
-    start = poses[ia] + f[:, None] * (poses[ib] - poses[ia])
-    start[:, 2] = wrap_angle(poses[ia, 2] + f * wrap_angle(poses[ib, 2] - poses[ia, 2]))
+    start = interpolate(poses[ia], poses[ib], f)
     again = start.copy()
     how_again = np.full(len(at), BETWEEN, dtype=np.int8)
     fit_again = np.zeros(len(at))
@@ -455,6 +454,5 @@ def between_matched(recorded: np.ndarray, placed: np.ndarray, matched: np.ndarra
     moved = span > 1e-9
     w = np.where(moved, (along[free] - along[ia]) / np.where(moved, span, 1.0), (free - ia) / np.maximum(scans, 1.0))
     w = np.where(before < 0, 1.0, np.where(after >= len(idx), 0.0, np.clip(w, 0.0, 1.0)))
-    out[free, :2] = from_a[:, :2] + w[:, None] * (from_b[:, :2] - from_a[:, :2])
-    out[free, 2] = wrap_angle(from_a[:, 2] + w * wrap_angle(from_b[:, 2] - from_a[:, 2]))
+    out[free] = interpolate(from_a, from_b, w)
     return out

@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from gslam.se2 import compose, inverse
+
 SEQUENTIAL, CLOSURE = 0, 1
 
 
@@ -45,8 +47,6 @@ class Optimised:
 
 def residuals(poses: np.ndarray, edges: list[Edge]) -> np.ndarray:
     """Whitened squared residual of every edge at `poses` (sum over x, y, heading of (error / sigma)^2)."""
-    from gslam.se2 import compose, inverse
-
     if not edges:
         return np.empty(0)
     i = np.array([e.i for e in edges])
@@ -106,7 +106,8 @@ def optimise_robust(
         if not bad:
             break
         rejected += bad
-        active = [k for k in active if k not in set(bad)]
+        dropped = set(bad)
+        active = [k for k in active if k not in dropped]
     else:
         out, its = optimise(poses, [edges[k] for k in active], huber_k)
         iterations += its

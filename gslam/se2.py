@@ -34,6 +34,17 @@ def inverse(a: np.ndarray) -> np.ndarray:
     )
 
 
+def interpolate(a: np.ndarray, b: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """The poses a fraction `f` (...,) of the way from `a` to `b` (..., 3): position along the straight line,
+    heading along the shorter turn."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    f = np.asarray(f, dtype=float)
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., :2] = a[..., :2] + f[..., None] * (b[..., :2] - a[..., :2])
+    out[..., 2] = wrap_angle(a[..., 2] + f * wrap_angle(b[..., 2] - a[..., 2]))
+    return out
+
+
 def compose_inverse(a: tuple[float, float, float], b: tuple[float, float, float]) -> tuple[float, float, float]:
     """a (+) b^-1 for one pose each, in Python floats: `compose(a, inverse(b))` without numpy's per-call
     cost (a writer computes it at every scan: map -> odom is the SLAM pose (+) the odometry pose^-1)."""

@@ -153,7 +153,7 @@ def test_a_wrong_closure_is_outvoted_and_rejected(ring):
     backend.edges.append(edge)
     from gslam.backend import ClosureRecord
 
-    backend.closures.append(ClosureRecord(k, 0, a, 0.9, wrong, edge, kept=True, confirmed=True))
+    backend.closures.append(ClosureRecord(edge, 0, kept=True, confirmed=True))
     backend._unoptimised = 1
     backend.finish()
     assert backend.closures[-1].kept is False

@@ -199,12 +199,11 @@ def loop_closure_note(closure: dict[str, Any]) -> str:
         f"{closure.get('closures_rejected')} rejected (mean score {score(closure.get('rejected_score_mean'))}); "
         f"search {closure.get('search_s')} s, {closure.get('optimisations')} optimisations "
         f"{closure.get('optimise_s')} s, {closure.get('seconds')} s in all; "
+        f"the front end missed {closure.get('closures_missed_by_front_end')} of the closures: "
         + (
-            f"the front end missed {closure.get('closures_missed_by_front_end')} of the closures: trajectory "
-            "and map on the optimised graph"
+            "trajectory and map on the optimised graph"
             if closure.get("applied")
-            else f"the front end missed {closure.get('closures_missed_by_front_end')} of the closures: "
-            "they confirm it, trajectory and map left as they were"
+            else "they confirm it, trajectory and map left as they were"
         )
     )
 
