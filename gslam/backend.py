@@ -71,6 +71,10 @@ class BackEndSettings:
     this (its whitened squared residual: 3 sigma); the closures the estimate already agrees with wait for
     the end of the run (or for `optimise_closures` of them): optimising for them would move little."""
     optimise_closures: int = 50
+    optimise_gap_nodes: int = 1
+    """Nodes at least between two optimisations (the one at the end aside): 1 optimises for each closure
+    the estimate misses as it comes; the live graph (`gslam.livebackend`), whose front-end poses miss more
+    of them, waits a few nodes and optimises for several at once."""
     inconsistent_chi2: float = 9.0
     min_inconsistent: int = 5
     min_inconsistent_fraction: float = 0.05
@@ -131,15 +135,19 @@ class PoseGraphBackEnd:
         self.optimisations: list[float] = []  # seconds each
         self._unoptimised = 0  # closures added since the last optimisation
         self._urgent = False  # a closure waits that the estimate misses (`optimise_chi2`)
+        self._optimised_at = -(10**9)  # the node count at the last optimisation
         self.inconsistent = 0  # closures kept that the front end misses (`finish`)
         self.applied = False  # whether the optimised graph corrects the front end (`finish`)
 
     def __len__(self) -> int:
         return len(self.steps)
 
-    def add_node(self, step: int, pose: np.ndarray, points_xy: np.ndarray) -> None:
+    def add_node(self, step: int, pose: np.ndarray, points_xy: np.ndarray, relative: np.ndarray | None = None) -> None:
         """A node at the front end's `pose` for the run's scan `step`, with its returns `points_xy` (sensor
-        frame); ties it to the node before, closes a submap when one is full, searches for closures."""
+        frame); ties it to the node before, closes a submap when one is full, searches for closures.
+        `relative`: the front end's motion from the node before to this one, where it is not the difference
+        of their poses (online, the best particle may have changed between them: its own history says how
+        it moved)."""
         s = self.settings
         pose = np.asarray(pose, dtype=float)
         rng = np.hypot(points_xy[:, 0], points_xy[:, 1]) if len(points_xy) else np.empty(0)
@@ -147,19 +155,9 @@ class PoseGraphBackEnd:
         pts = voxel_filter(within, s.closure.voxel_m)
         k = len(self.steps)
         if k:
-            prev = self.front[-1]
-            rel = compose(inverse(prev), pose)
-            dist = float(np.hypot(rel[0], rel[1]))
-            turn = abs(float(rel[2]))
-            sig = np.array(
-                [
-                    s.sequential_sigma_xy_m + s.sequential_sigma_xy_per_m * dist,
-                    s.sequential_sigma_xy_m + s.sequential_sigma_xy_per_m * dist,
-                    s.sequential_sigma_phi_rad + s.sequential_sigma_phi_per_rad * turn,
-                ]
-            )
-            self.edges.append(Edge(k - 1, k, rel, sig, SEQUENTIAL))
-            self.travel.append(self.travel[-1] + dist)
+            rel = compose(inverse(self.front[-1]), pose) if relative is None else np.asarray(relative, dtype=float)
+            self.edges.append(Edge(k - 1, k, rel, self._sequential_sigmas(rel), SEQUENTIAL))
+            self.travel.append(self.travel[-1] + float(np.hypot(rel[0], rel[1])))
             est = compose(self.estimate[-1], rel)
         else:
             self.travel.append(0.0)
@@ -173,6 +171,29 @@ class PoseGraphBackEnd:
             self.submaps.append((first, k + 1))
         if k % s.search_every == 0:
             self._search(k)
+
+    def _sequential_sigmas(self, rel: np.ndarray) -> np.ndarray:
+        """A sequential edge's sigmas (m, m, rad): growing with the motion `rel` it measures."""
+        s = self.settings
+        dist = float(np.hypot(rel[0], rel[1]))
+        xy = s.sequential_sigma_xy_m + s.sequential_sigma_xy_per_m * dist
+        return np.array([xy, xy, s.sequential_sigma_phi_rad + s.sequential_sigma_phi_per_rad * abs(float(rel[2]))])
+
+    def refresh_front(self, front: np.ndarray) -> None:
+        """Take the front end's poses of the nodes (M, 3) as they stand now: a particle filter's best
+        history is rewritten as the run goes (resampling keeps the particles that fit). The sequential edges
+        are measured again from them, and the submaps not yet built are drawn at them; the closures and the
+        submaps built stand (each spans a few metres, which a rewrite hardly bends)."""
+        s = self.settings
+        front = np.asarray(front, dtype=float).reshape(-1, 3)
+        self.front = list(front)
+        rel = compose(inverse(front[:-1]), front[1:])
+        xy = s.sequential_sigma_xy_m + s.sequential_sigma_xy_per_m * np.hypot(rel[:, 0], rel[:, 1])
+        phi = s.sequential_sigma_phi_rad + s.sequential_sigma_phi_per_rad * np.abs(rel[:, 2])
+        sig = np.column_stack([xy, xy, phi])
+        for k, e in enumerate(self.edges):
+            if e.kind == SEQUENTIAL:
+                self.edges[k] = Edge(e.i, e.j, rel[e.i], sig[e.i], SEQUENTIAL)
 
     def _field(self, m: int) -> Submap:
         sub = self._fields.get(m)
@@ -190,17 +211,23 @@ class PoseGraphBackEnd:
         return sub
 
     def _candidates(self, k: int) -> list[int]:
+        """The submaps to search node `k` in: left `min_separation_m` of travel before it, one of their
+        nodes within `search_radius_m` of its estimate; the nearest `max_candidates` of them."""
         s = self.settings
-        here = self.estimate[k, :2]
-        found: list[tuple[float, int]] = []
-        for m, (a, b) in enumerate(self.submaps):
-            if self.travel[k] - self.travel[b - 1] < s.min_separation_m:
-                continue
-            d = float(np.min(np.hypot(*(self.estimate[a:b, :2] - here).T)))
-            if d <= s.search_radius_m:
-                found.append((d, m))
-        found.sort()
-        return [m for _, m in found[: s.max_candidates]]
+        if not self.submaps:
+            return []
+        bounds = np.asarray(self.submaps)
+        travel = np.asarray(self.travel)
+        far = np.flatnonzero(travel[k] - travel[bounds[:, 1] - 1] >= s.min_separation_m)
+        if len(far) == 0:
+            return []
+        # the submaps are consecutive runs of nodes: the nearest node of each, from one pass over them
+        end = int(bounds[far[-1], 1])
+        d = np.hypot(*(self.estimate[:end, :2] - self.estimate[k, :2]).T)
+        nearest = np.minimum.reduceat(d, bounds[: far[-1] + 1, 0])[far]
+        near = np.flatnonzero(nearest <= s.search_radius_m)
+        order = near[np.argsort(nearest[near], kind="stable")]
+        return [int(far[i]) for i in order[: s.max_candidates]]
 
     def _search(self, k: int) -> None:
         s = self.settings
@@ -224,7 +251,9 @@ class PoseGraphBackEnd:
             record = ClosureRecord(edge, m)
             self.closures.append(record)
             self._confirm(record)
-        if self._urgent or self._unoptimised >= s.optimise_closures:
+        if (self._urgent or self._unoptimised >= s.optimise_closures) and (
+            len(self.steps) - self._optimised_at >= s.optimise_gap_nodes
+        ):
             self.optimise()
 
     def _where(self, c: ClosureRecord) -> np.ndarray:
@@ -273,21 +302,27 @@ class PoseGraphBackEnd:
         self.estimate = result.poses
         self._unoptimised = 0
         self._urgent = False
+        self._optimised_at = len(self.steps)
 
     def finish(self) -> None:
         """Optimise once more if closures wait; then decide whether the graph corrects the front end at all
         (`min_inconsistent`): if not, the node estimates are set back to the front end's poses."""
         if self._unoptimised:
             self.optimise()
-        s = self.settings
-        kept = [c.edge for c in self.closures if c.kept]
-        misses = residuals(np.asarray(self.front).reshape(-1, 3), kept) if kept else np.empty(0)
-        self.inconsistent = int(np.sum(misses > s.inconsistent_chi2))
-        self.applied = self.inconsistent >= s.min_inconsistent and self.inconsistent >= (
-            s.min_inconsistent_fraction * len(kept)
-        )
+        self.inconsistent, self.applied = self.judge_front_end()
         if not self.applied:
             self.estimate = np.asarray(self.front, dtype=float).reshape(-1, 3).copy()
+
+    def judge_front_end(self, front: np.ndarray | None = None) -> tuple[int, bool]:
+        """(closures kept that the front end's own poses miss, whether that is enough for the graph to
+        correct the front end): the gate of `min_inconsistent` and `min_inconsistent_fraction`. `front`: the
+        front end's poses of the nodes (default: those they were added at)."""
+        s = self.settings
+        kept = [c.edge for c in self.closures if c.kept]
+        poses = np.asarray(self.front if front is None else front, dtype=float).reshape(-1, 3)
+        misses = residuals(poses, kept) if kept else np.empty(0)
+        missed = int(np.sum(misses > s.inconsistent_chi2))
+        return missed, missed >= s.min_inconsistent and missed >= s.min_inconsistent_fraction * len(kept)
 
     def node_steps(self, front_poses: np.ndarray) -> np.ndarray:
         """The steps of a trajectory (T, 3) that make nodes: the first, then each one that has moved
@@ -370,10 +405,15 @@ class PoseGraphBackEnd:
 
 
 def correct_between(
-    front: np.ndarray, node_steps: np.ndarray, node_front: np.ndarray, node_est: np.ndarray
+    front: np.ndarray,
+    node_steps: np.ndarray,
+    node_front: np.ndarray,
+    node_est: np.ndarray,
+    at_steps: np.ndarray | None = None,
 ) -> np.ndarray:
-    """`front` (T, 3) corrected by the nodes: scan t's pose relative to its nodes kept, blended."""
-    t = np.arange(len(front))
+    """`front` (T, 3) corrected by the nodes: scan t's pose relative to its nodes kept, blended. `at_steps`:
+    the steps of `front`'s rows (default 0 to T - 1)."""
+    t = np.arange(len(front)) if at_steps is None else np.asarray(at_steps)
     if len(node_steps) == 0:
         return front.copy()
     before = np.clip(np.searchsorted(node_steps, t, side="right") - 1, 0, len(node_steps) - 1)

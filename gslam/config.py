@@ -258,6 +258,11 @@ class FilterConfig:
     left at least 20 m of travel before, optimised under a robust loss (`gslam.backend`, its settings
     `BackEndSettings`); the trajectory, the final map and the occupancy grid follow the optimised graph.
     False: the placed trajectory as it is (docs/CHOICES.md, "Back end")."""
+    loop_closure_live: bool = True
+    """With loop_closure, also build the graph while the run goes, in a background thread, from the best
+    particle's poses (`gslam.livebackend`): from the moment it accepts closures that the front end misses,
+    /tf's map -> odom, the pose, the particles, the path and the map snapshots follow it. Its timing depends
+    on the machine; the final trajectory and map do not (the run's end builds the graph again)."""
 
     # Resampling.
     resample_threshold: float = 0.5

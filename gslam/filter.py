@@ -179,7 +179,7 @@ class GSlamFilter:
         backend = PoseGraphBackEnd(settings or BackEndSettings())
         steps = backend.node_steps(front)
         for step, scan in zip(steps, scans(list(steps)), strict=True):
-            backend.add_node(step, front[step], _end_points(self._as_observed(scan)))
+            backend.add_node(step, front[step], self.node_points(scan))
         backend.finish()
         if backend.applied:  # else the closures confirm the front end: its trajectory and map stand
             xy, p = self.map_points(best)
@@ -187,6 +187,11 @@ class GSlamFilter:
             self.placed = (times, backend.correct_trajectory(front))
             self._corrected_map = (best, moved.astype(np.asarray(xy).dtype), p)
         return backend
+
+    def node_points(self, scan: Scan) -> np.ndarray:
+        """The scan's returns as the back end takes them (`gslam.backend`): the end points (K, 2), in the
+        sensor frame, of the returns the filter observes."""
+        return _end_points(self._as_observed(scan))
 
     def map_points(self, particle: int) -> tuple[np.ndarray, np.ndarray]:
         """The particle's map as points (K, 2) with probabilities (K,); the best particle's moved with the

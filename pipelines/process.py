@@ -148,6 +148,7 @@ def process(
         times = _run_steps(run, progress, notice)
     except BaseException:  # a signal before its loop could catch it: the outputs are dropped, not orphaned
         _abort(run.writers)
+        _stop_live(run)
         raise
     summary = _finish(run, times, notice)
     if times.after_last_scan is not None:
@@ -375,6 +376,11 @@ def _close_loops(
     return record, graph
 
 
+def _stop_live(run: _OpenRun) -> dict | None:
+    """Stop the live back end (`loop_closure_live`) once the steps are over: its record, or None."""
+    return run.runner.stop_live()
+
+
 def _finish(run: _OpenRun, times: _StepTimes, notice: Callable[[str], None] | None) -> ProcessSummary:
     """Finish every output with the steps done (the result MCAP last, so that it records the others'
     figures); a signal meanwhile waits for it. An output that cannot be finished is dropped, the others
@@ -384,8 +390,11 @@ def _finish(run: _OpenRun, times: _StepTimes, notice: Callable[[str], None] | No
     try:
         # A signal from here on waits for the outputs to be finished (a second one aborts them).
         with interrupts.deferred():
+            live = _stop_live(run)
             placement = _place_every_scan(run, times, notice)
             closure, graph = _close_loops(run, times, notice)
+            if closure is not None:
+                closure["live"] = live
             summary = _summary(run, times)
             result_meta = _result_metadata(run, times, summary)
             result_meta["placement"] = placement

@@ -205,6 +205,23 @@ def loop_closure_note(closure: dict[str, Any]) -> str:
             if closure.get("applied")
             else "they confirm it, trajectory and map left as they were"
         )
+        + _live_note(closure.get("live"))
+    )
+
+
+def _live_note(live: dict[str, Any] | None) -> str:
+    """The live graph's part of the loop-closure line (`loop_closure_live`)."""
+    if not live:
+        return ""
+    when = live.get("first_corrected_step")
+    return (
+        f"; while the run went: {live.get('nodes')} nodes, {live.get('closures_kept')} closures kept, "
+        + (
+            f"/tf corrected from step {when} ({live.get('corrections_published')} corrections)"
+            if when is not None
+            else "/tf not corrected (the front end held its closures)"
+        )
+        + (f", stopped early: {live['error']}" if live.get("error") else "")
     )
 
 

@@ -13,14 +13,17 @@ from typing import ClassVar
 import numpy as np
 
 from gslam.config import FilterConfig, check_fields
-from gslam.filter import StepResult
+from gslam.filter import GSlamFilter, StepResult
 from gslam.initialisation import fit_initial_heading
+from gslam.livebackend import LiveBackEnd
 from gslam.motion import apply_odometry, integrate_ackermann, odometry_delta
 from gslam.scan import Scan, ScanGeometry
+from gslam.se2 import compose
 from gslam.vehicle import VEHICLE_PRESETS, AckermannVehicle, vehicle_preset
 from pipelines.errors import InputError
 from pipelines.methods import make_filter, method
 from pipelines.run.input_log import ControlEvent, GpsEvent, InputLog, OdomEvent, ScanEvent
+from pipelines.run.live_graph import CorrectedView
 from pipelines.run.mount import BaseFrameView
 from pipelines.run.odometry_check import ReversalCheck
 
@@ -136,8 +139,15 @@ class SlamRunner:
             cfg, np.zeros(3) if self.initial_pose is None else self.initial_pose, log.self_return_range_m
         )
         self.mount = log.mount
-        self.output_filter = self.filter if self.mount is None else BaseFrameView(self.filter, self.mount)
-        """What the outputs read: the filter, seen from the base when the laser is mounted off it."""
+        fcfg = cfg.filter
+        self.live: LiveBackEnd | None = None
+        """The back end while the run goes (`loop_closure_live`): it moves the outputs onto its graph."""
+        if isinstance(self.filter, GSlamFilter) and fcfg.loop_closure and fcfg.loop_closure_live:
+            self.live = LiveBackEnd()
+        view = self.filter if self.live is None else CorrectedView(self.filter, self.live)
+        self.output_filter = view if self.mount is None else BaseFrameView(view, self.mount)
+        """What the outputs read: the filter, moved onto the live graph where it corrects the front end, and
+        seen from the base when the laser is mounted off it."""
         self.gps: list[tuple[float, float, float]] = []
         self._turned: ScanGeometry | None = None  # the log's geometry turned by the mounting yaw
 
@@ -151,6 +161,32 @@ class SlamRunner:
             self.initialised_from_gps = True
             return fit_initial_heading(controls, gps, self.vehicle, self.cfg.init_heading_window_s), float(gps[0, 0])
         return np.zeros(3), float(controls[0, 0])
+
+    def _onto_live_graph(self, scan: Scan, result: StepResult) -> StepResult:
+        """Offer the step to the live back end (it takes a node every half metre) and move its poses onto
+        the graph's latest correction, if the graph has one for the front end (`gslam.livebackend`)."""
+        flt, live = self.filter, self.live
+        step, best = flt.steps - 1, result.best  # the step's level in the tree; its best node there
+
+        def history(levels: np.ndarray) -> np.ndarray:
+            return flt.tree.node_trajectory(best, levels)[1]
+
+        live.offer(step, result.best_pose, lambda: flt.node_points(scan), history)
+        corr = live.correction
+        if corr is None:
+            return result
+        live.note_applied(step)
+        move = corr.latest(history)
+        return dataclasses.replace(result, poses=compose(move, result.poses), best_pose=compose(move, result.best_pose))
+
+    def stop_live(self) -> dict | None:
+        """Stop the live back end (its record for the result; None without one). The outputs read the
+        filter as it is from here (the run's end corrects it once more, `GSlamFilter.close_loops`)."""
+        if self.live is None:
+            return None
+        record = self.live.stop()
+        self.live.correction = None
+        return record
 
     def scan_of(self, ev: ScanEvent) -> Scan:
         """The filter's scan of an input scan: its geometry (the log's, or its own) with the laser's mounting
@@ -243,6 +279,8 @@ class SlamRunner:
                 t0 = time.perf_counter()
                 result = self.filter.step(scan, predict, ev.intensities)
                 step_ms = (time.perf_counter() - t0) * 1e3
+                if self.live is not None:
+                    result = self._onto_live_graph(scan, result)
                 laser_pose = result.best_pose
                 if self.mount is not None:
                     result = dataclasses.replace(
