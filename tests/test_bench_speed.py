@@ -53,3 +53,18 @@ def test_without_the_harness_the_reference_time_is_labelled():
     text = speed_section([_run("intel", 30.0)], "cmd", "machine", "software", 3, [])
     row = next(line for line in text.splitlines() if line.startswith("| intel"))
     assert "68.7 (reference)" in row and "not run beside this table" in text
+
+
+def test_the_back_end_cost_is_the_median_of_paired_ratios():
+    """Each pair's ratio on / off, then the median: (26 / 20, 27 / 24, 30 / 22) -> 1.30."""
+    from dataclasses import replace
+
+    from pipelines.bench.suites import backend_cost_section
+
+    pairs = []
+    for on, off in ((26.0, 20.0), (27.0, 24.0), (30.0, 22.0)):
+        a = replace(_run("intel", on), finish_s=(3.0, 2.5), live_s=2.0, peak_mb=350.0)
+        pairs.append((a, replace(_run("intel", off), options={"loop_closure": False}, peak_mb=250.0)))
+    text = backend_cost_section(pairs)
+    row = next(line for line in text.splitlines() if line.startswith("| intel"))
+    assert row.startswith("| intel | 27.0 / 22.0 | 1.30 | 2.5 | 2.0 | 350 / 250 |"), row

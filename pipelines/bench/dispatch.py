@@ -171,7 +171,8 @@ def _freiburg(request: BenchRequest, echo: Callable[[str], None]) -> str:
 
 
 def _speed(request: BenchRequest, echo: Callable[[str], None]) -> str:
-    from pipelines.bench.suites import run_suite, speed_section
+    from pipelines.bench.corpus import build_corpus
+    from pipelines.bench.suites import backend_cost_runs, backend_cost_section, run_suite, speed_section
 
     logs = _freiburg_logs(request)
     if not request.data.exists():
@@ -187,7 +188,14 @@ def _speed(request: BenchRequest, echo: Callable[[str], None]) -> str:
         runs += run_suite("speed", [log], ns, [0], counts, 3, echo, harness, gm_runs, lama, lama_runs)
         if lama is not None and 30 in ns and 0 in counts and len(lama_runs) == before:
             lama = None  # it failed, and said why: not again for the next logs
-    return speed_section(runs, request.command, *_machine(), 3, gm_runs, lama_runs)
+    text = speed_section(runs, request.command, *_machine(), 3, gm_runs, lama_runs)
+    # The back end's cost on intel and the 1.75 km campus (the robustness corpus's, odometry seed 0)
+    with tempfile.TemporaryDirectory(prefix="gslam-bench-speed-") as tmp:
+        campus = [c.log for c in build_corpus(request.datasets, Path(tmp), 0) if c.name == "freiburg-campus"]
+        if not campus:
+            echo(f"--datasets {request.datasets}: freiburg-campus not found; the back end's cost on intel only")
+        pairs = backend_cost_runs([logs[1], *campus], 3, echo, Path(tmp))
+    return text + backend_cost_section(pairs)
 
 
 def _carpark(request: BenchRequest, echo: Callable[[str], None]) -> str:

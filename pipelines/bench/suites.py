@@ -77,6 +77,10 @@ class SuiteRun:
     """Peak resident memory of the Rerun recording's child writer (`pipelines.outputs.rerun_recorder`)."""
     finish_s: tuple[float, float] = (float("nan"), float("nan"))
     """Seconds of the run's end: every scan placed by the final map, and the back end (`loop_closure`)."""
+    live_s: float = float("nan")
+    """Seconds the live back end's worker thread worked while the run went (`loop_closure_live`)."""
+    options: dict = field(default_factory=dict)
+    """The filter options the run was given besides N and the seed."""
 
 
 @dataclass
@@ -187,15 +191,19 @@ def _percentile(values: list[float], q: float) -> float:
     return s[min(len(s) - 1, int(round(q / 100 * (len(s) - 1))))]
 
 
-def timed_run(input_mcap: Path, particles: int, seed: int, threads: int, workdir: Path) -> SuiteRun:
-    """`gslam process INPUT OUT --particles N --seed S [--threads K]` in a child process, as a user runs it
-    (result MCAP and Rerun recording written), timed whole; then `gslam eval` on the result. threads 0:
-    the default, every core."""
+def timed_run(
+    input_mcap: Path, particles: int, seed: int, threads: int, workdir: Path, options: dict | None = None
+) -> SuiteRun:
+    """`gslam process INPUT OUT --particles N --seed S [--threads K] [--set NAME=VALUE ...]` in a child
+    process, as a user runs it (result MCAP and Rerun recording written), timed whole; then `gslam eval` on
+    the result. threads 0: the default, every core; `options`: filter options (`--set`)."""
     from pipelines.bench.tasks import Task, run_task
     from pipelines.evaluation.evaluate import read_update_times
 
-    out = workdir / f"{input_mcap.stem}_n{particles}_s{seed}_t{threads}.mcap"
-    task = Task(input_mcap, particles=particles, seed=seed, threads=threads or None)
+    options = dict(options or {})
+    tag = "".join(f"_{k}-{v}" for k, v in sorted(options.items()))
+    out = workdir / f"{input_mcap.stem}_n{particles}_s{seed}_t{threads}{tag}.mcap"
+    task = Task(input_mcap, particles=particles, seed=seed, threads=threads or None, options=options)
     run = run_task(task, out, out.with_suffix(".rrd"), child_process=True, keep=True)
     update_ms = read_update_times(out)
     for p in (out, out.with_suffix(".rrd")):
@@ -216,7 +224,15 @@ def timed_run(input_mcap: Path, particles: int, seed: int, threads: int, workdir
         ratio,
         float(run.result.get("peak_rss_mb_rrd_writer") or float("nan")),
         (_seconds(run.result.get("placement")), _seconds(run.result.get("loop_closure"))),
+        _live_seconds(run.result.get("loop_closure")),
+        options,
     )
+
+
+def _live_seconds(record: dict | None) -> float:
+    """The live back end's worker seconds from the result's `loop_closure` record (nan where it did not run)."""
+    live = record.get("live") if isinstance(record, dict) else None
+    return float(live["worker_s"]) if isinstance(live, dict) and "worker_s" in live else float("nan")
 
 
 def _seconds(record: dict | None) -> float:
@@ -438,6 +454,65 @@ def speed_section(
             f"| {statistics.median(r.update_ratio for r in sel):.2f} | {max(r.peak_mb for r in sel):.0f} + "
             f"{max(r.writer_peak_mb for r in sel):.0f} | {err_s} "
             f"| {gm_shown} | {f'{gm / wall:.2f}' if gm else '-'} | {' | '.join(lama_cells)} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+BACK_END_OFF = {"loop_closure": False}
+"""The back end's cost is measured against runs with it off (`backend_cost_runs`)."""
+
+
+def backend_cost_runs(
+    logs: list[Path], repeats: int, progress: Callable[[str], None], workdir: Path
+) -> list[tuple[SuiteRun, SuiteRun]]:
+    """Each log at N 30, seed 0, every core: `repeats` pairs of runs, the defaults (the back end on, live
+    and at the end) then `loop_closure=false`, one right after the other so that each pair saw the same
+    machine."""
+    pairs = []
+    for log in logs:
+        mcap = ingest_to(log, workdir)
+        for rep in range(repeats):
+            on = timed_run(mcap, 30, 0, 0, workdir)
+            off = timed_run(mcap, 30, 0, 0, workdir, BACK_END_OFF)
+            pairs.append((on, off))
+            progress(
+                f"speed: back end cost, {on.log} run {rep + 1}/{repeats}: {on.wall_s:.1f} s on, {off.wall_s:.1f} s off"
+            )
+    return pairs
+
+
+def backend_cost_section(pairs: list[tuple[SuiteRun, SuiteRun]]) -> str:
+    """The back end's cost: per log, whole-run wall with the back end (defaults) and without it, the
+    ratio pair by pair (median), the back end's seconds at the run's end and its live worker's, and the
+    peak memory of both."""
+    lines = [
+        "",
+        "### The back end's cost (`loop_closure`, `loop_closure_live`)",
+        "",
+        "Whole runs at N 30, seed 0, every core, in pairs: the defaults, then `--set loop_closure=false`, one",
+        "right after the other; the ratio is taken pair by pair (median). Back end at the end: the seconds of",
+        "the graph built over the placed trajectory; live worker: the seconds the background thread worked",
+        "while the run went (sharing the two cores with the filter).",
+        "",
+        "| log | wall on / off (s) | ratio on / off | back end at the end (s) | live worker (s) "
+        "| peak MB on / off | error on / off |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for log in dict.fromkeys(on.log for on, _ in pairs):
+        sel = [(on, off) for on, off in pairs if on.log == log]
+
+        def med(values: list[float]) -> float:
+            return statistics.median(values)
+
+        def err(r: SuiteRun) -> str:
+            v = r.metrics.get("relations_trans_m")
+            return f"{v:.3f} m" if v is not None else f"{r.metrics.get('gps_mean_error_m') or float('nan'):.2f} m"
+
+        lines.append(
+            f"| {log} | {med([a.wall_s for a, _ in sel]):.1f} / {med([b.wall_s for _, b in sel]):.1f} "
+            f"| {med([a.wall_s / b.wall_s for a, b in sel]):.2f} | {med([a.finish_s[1] for a, _ in sel]):.1f} "
+            f"| {med([a.live_s for a, _ in sel]):.1f} | {max(a.peak_mb for a, _ in sel):.0f} / "
+            f"{max(b.peak_mb for _, b in sel):.0f} | {err(sel[0][0])} / {err(sel[0][1])} |"
         )
     return "\n".join(lines) + "\n"
 
