@@ -106,6 +106,9 @@ class LiveBackEnd:
     optimise_gap_nodes = 20
     """Nodes at least between two optimisations (each takes tens of milliseconds on a graph of a
     thousand nodes); until the next one, the nodes since follow the front end."""
+    optimise_gap_share = 25
+    """... and at least the graph's nodes / this: an optimisation's cost grows with the graph, so on a
+    long run (a 4.8 km log makes some 10 000 nodes) the worker's time on them grows as n log n, not n^2."""
 
     def __init__(self, settings: BackEndSettings = LIVE_SETTINGS, background: bool = True) -> None:
         self.settings = settings
@@ -209,7 +212,8 @@ class LiveBackEnd:
             # estimate, chained by the motion as it was offered, would drift from the history as rewritten)
             move = compose(g.estimate[size - 1], inverse(belief[size - 1]))
             g.estimate = np.vstack([g.estimate[:size], compose(move, belief[size:])])
-        if kept > kept_then and (size == 0 or len(g) - size >= self.optimise_gap_nodes):
+        gap = max(self.optimise_gap_nodes, len(g) // self.optimise_gap_share)
+        if kept > kept_then and (size == 0 or len(g) - size >= gap):
             g.optimise()
             self._optimised_at = (len(g), sum(c.kept for c in g.closures))
         self.correction = GraphCorrection(np.asarray(g.steps), np.asarray(g.estimate, dtype=float), kept)
