@@ -177,6 +177,7 @@ def _open(
         writers.append(RerunResultWriter(rrd_path, cfg.map_snapshot_every, writer=rrd_writer, live_url=cfg.live_url))
     elif rrd_writer is not None:
         rrd_writer.abort()  # started for a recording this run does not write
+    runner: SlamRunner | None = None
     try:
         log = InputLog(input_path)
         skip_blas_probe()
@@ -187,6 +188,8 @@ def _open(
         return _OpenRun(log, runner, writers, cfg, Path(output_path), Path(rrd_path) if rrd_path else None)
     except BaseException:
         _abort(writers)
+        if runner is not None:
+            runner.stop_live()  # its worker thread ends with the run that could not start
         raise
 
 

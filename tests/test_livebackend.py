@@ -260,3 +260,23 @@ def test_the_live_correction_reaches_tf_pose_and_path_but_not_the_final_result(t
     np.testing.assert_allclose(final_b, final_a, atol=1e-12)
     live = McapInput(moved).metadata()["result"]["loop_closure"]["live"]
     assert live["first_corrected_step"] == 15 and live["error"] is None, live
+
+
+def test_a_run_that_cannot_start_leaves_no_worker_thread(tmp_path, monkeypatch):
+    """The live graph's thread starts with the runner; a run whose outputs cannot be started stops it."""
+    import threading
+
+    from test_user_commands import _carmen_log, gslam
+
+    import pipelines.outputs.mcap_result as mcap_result
+    from ingest import ingest
+
+    ingest(_carmen_log(tmp_path / "corridor.clf", 10), tmp_path / "in.mcap")
+
+    def refuse(self, run):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(mcap_result.McapResultWriter, "start", refuse)
+    result = gslam("process", tmp_path / "in.mcap", "-o", tmp_path / "out.mcap", "--no-rrd", "-N", "2")
+    assert result.exit_code != 0
+    assert not [t for t in threading.enumerate() if t.name == "gslam-back-end"]
