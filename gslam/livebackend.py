@@ -107,8 +107,9 @@ class LiveBackEnd:
     """Nodes at least between two optimisations (each takes tens of milliseconds on a graph of a
     thousand nodes); until the next one, the nodes since follow the front end."""
     optimise_gap_share = 25
-    """... and at least the graph's nodes / this: an optimisation's cost grows with the graph, so on a
-    long run (a 4.8 km log makes some 10 000 nodes) the worker's time on them grows as n log n, not n^2."""
+    """... and at least the graph's nodes / this: an optimisation's cost grows with the graph, so spaced
+    so, their total cost on a long run (a 4.8 km log makes some 10 000 nodes) grows with the nodes (about
+    25 graphs' worth), not with their square."""
 
     def __init__(self, settings: BackEndSettings = LIVE_SETTINGS, background: bool = True) -> None:
         self.settings = settings
