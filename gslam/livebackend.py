@@ -129,10 +129,9 @@ class LiveBackEnd:
         self._stopping = False
         self._error: Exception | None = None
         self._worker_s = 0.0
+        self._background = background
         self._thread: threading.Thread | None = None
-        if background:
-            self._thread = threading.Thread(target=self._work, name="gslam-back-end", daemon=True)
-            self._thread.start()
+        """The worker, started by the first node (a runner built but never run starts none)."""
 
     def due(self, pose: np.ndarray) -> bool:
         """Whether the front end's `pose` makes a node: the first, then one each `node_travel_m` of
@@ -161,9 +160,12 @@ class LiveBackEnd:
         self._last_pose = pose.copy()
         self.offered += 1
         item = (int(step), pose.copy(), np.asarray(points_xy(), dtype=float), belief)
-        if self._thread is None:
+        if not self._background:
             self._add(*item)
         else:
+            if self._thread is None and not self._stopping:
+                self._thread = threading.Thread(target=self._work, name="gslam-back-end", daemon=True)
+                self._thread.start()
             self._queue.put(item)
             self.most_waiting = max(self.most_waiting, self._queue.qsize())
         return True

@@ -109,6 +109,7 @@ def test_the_worker_thread_runs_beside_and_stops(long_ring):
     assert record["error"] is None
     assert record["nodes"] + record["nodes_dropped_at_end"] == live.offered
     assert live._thread is not None and not live._thread.is_alive()
+    assert LiveBackEnd()._thread is None  # none started before the first node
 
 
 def test_a_failing_worker_leaves_the_run_uncorrected_and_says_why(long_ring, monkeypatch):
@@ -277,6 +278,7 @@ def test_a_run_that_cannot_start_leaves_no_worker_thread(tmp_path, monkeypatch):
         raise OSError("disk full")
 
     monkeypatch.setattr(mcap_result.McapResultWriter, "start", refuse)
+    before = set(threading.enumerate())
     result = gslam("process", tmp_path / "in.mcap", "-o", tmp_path / "out.mcap", "--no-rrd", "-N", "2")
     assert result.exit_code != 0
-    assert not [t for t in threading.enumerate() if t.name == "gslam-back-end"]
+    assert not [t for t in set(threading.enumerate()) - before if t.name == "gslam-back-end"]
