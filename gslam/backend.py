@@ -352,10 +352,7 @@ class PoseGraphBackEnd:
         if len(owner) == 0:
             return xy.copy()
         _, nearest = cKDTree(np.concatenate(ends)).query(xy)
-        node = owner[nearest]
-        move = compose(np.asarray(self.estimate)[node], inverse(np.asarray(self.front)[node]))
-        c, s = np.cos(move[:, 2]), np.sin(move[:, 2])
-        return np.column_stack([move[:, 0] + c * xy[:, 0] - s * xy[:, 1], move[:, 1] + s * xy[:, 0] + c * xy[:, 1]])
+        return move_with_nodes(xy, owner[nearest], np.asarray(self.front), np.asarray(self.estimate))
 
     def graph(self) -> dict:
         """The graph for the outputs (`SLAM_GRAPH_SCHEMA`): optimised node poses, steps, edges, closures."""
@@ -402,6 +399,11 @@ class PoseGraphBackEnd:
         """Every step's pose (T, 3) moved with the optimised nodes: each scan's front-end pose relative to
         the node before and the node after, blended by its place between them."""
         return correct_between(front_poses, np.asarray(self.steps), np.asarray(self.front), self.estimate)
+
+
+def move_with_nodes(xy: np.ndarray, node: np.ndarray, front: np.ndarray, estimate: np.ndarray) -> np.ndarray:
+    """Points (K, 2) each moved as its node `node` (K,) moved: from its front-end pose to its estimate."""
+    return transform_points(compose(estimate[node], inverse(front[node])), xy)
 
 
 def correct_between(

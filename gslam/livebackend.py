@@ -33,7 +33,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from gslam.backend import BackEndSettings, PoseGraphBackEnd, correct_between
+from gslam.backend import BackEndSettings, PoseGraphBackEnd, correct_between, move_with_nodes
 from gslam.motion import wrap_angle_scalar
 from gslam.se2 import compose, inverse
 
@@ -75,9 +75,7 @@ class GraphCorrection:
             return xy.copy()
         front = history(self.steps)
         _, node = cKDTree(front[:, :2]).query(xy)
-        move = compose(self.estimate[node], inverse(front[node]))
-        c, s = np.cos(move[:, 2]), np.sin(move[:, 2])
-        return np.column_stack([move[:, 0] + c * xy[:, 0] - s * xy[:, 1], move[:, 1] + s * xy[:, 0] + c * xy[:, 1]])
+        return move_with_nodes(xy, node, front, self.estimate)
 
 
 LIVE_SETTINGS = replace(

@@ -119,6 +119,8 @@ def _window_boxes(poses, cos_phi, sin_phi, ends, margin_m):  # pragma: no cover 
 
 
 def transform_points(pose: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Sensor-frame points (K, 2) to the world frame for one pose (x, y, phi)."""
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    return np.column_stack([pose[0] + c * pts[:, 0] - s * pts[:, 1], pose[1] + s * pts[:, 0] + c * pts[:, 1]])
+    """Sensor-frame points (K, 2) to the world frame for one pose (x, y, phi), or for each point its own
+    pose (K, 3)."""
+    pose = np.asarray(pose)
+    c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
+    return np.column_stack([pose[..., 0] + c * pts[:, 0] - s * pts[:, 1], pose[..., 1] + s * pts[:, 0] + c * pts[:, 1]])

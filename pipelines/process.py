@@ -148,7 +148,7 @@ def process(
         times = _run_steps(run, progress, notice)
     except BaseException:  # a signal before its loop could catch it: the outputs are dropped, not orphaned
         _abort(run.writers)
-        _stop_live(run)
+        run.runner.stop_live()
         raise
     summary = _finish(run, times, notice)
     if times.after_last_scan is not None:
@@ -379,11 +379,6 @@ def _close_loops(
     return record, graph
 
 
-def _stop_live(run: _OpenRun) -> dict | None:
-    """Stop the live back end (`loop_closure_live`) once the steps are over: its record, or None."""
-    return run.runner.stop_live()
-
-
 def _finish(run: _OpenRun, times: _StepTimes, notice: Callable[[str], None] | None) -> ProcessSummary:
     """Finish every output with the steps done (the result MCAP last, so that it records the others'
     figures); a signal meanwhile waits for it. An output that cannot be finished is dropped, the others
@@ -393,7 +388,7 @@ def _finish(run: _OpenRun, times: _StepTimes, notice: Callable[[str], None] | No
     try:
         # A signal from here on waits for the outputs to be finished (a second one aborts them).
         with interrupts.deferred():
-            live = _stop_live(run)
+            live = run.runner.stop_live()  # the live back end's record (`loop_closure_live`), or None
             placement = _place_every_scan(run, times, notice)
             closure, graph = _close_loops(run, times, notice)
             if closure is not None:
