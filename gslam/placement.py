@@ -287,14 +287,13 @@ def _place_run(
         rng = np.hypot(ends[:, 0], ends[:, 1])
         widths = [inc if match.score_sigma_rad is None else match.score_sigma_rad for _, inc in pending]
         sigma_rad = np.repeat(np.asarray(widths, dtype=float), counts)
-        # as `match_and_weigh`: the directions of the returns and the score's width at each
-        dirs = ends / np.maximum(rng, 1e-12)[:, None]
+        # as `match_and_weigh`: the score's width at each return
         score_inv = 0.5 / (match.score_sigma_m**2 + (rng * sigma_rad) ** 2)
         i = 0
         while i < len(pending):
             i, cells = _place_batch(
                 tiles.xy, tiles.p, tiles.key, tiles.origin[0], tiles.origin[1], tiles.tile_m, tiles.rows, tiles.cols,
-                ends, dirs, score_inv, offsets, first, i, a, anchor, recorded, path, poses, how,
+                ends, score_inv, offsets, first, i, a, anchor, recorded, path, poses, how,
                 match.cell_m, match.kernel, match.min_p, match.margin_m, parameters, match.climb_stride,
                 match.fine_stride, limits.min_returns, limits.min_hit_fraction, limits.max_shift_m, limits.max_turn_rad,
                 grid, sums, touched, fit,
@@ -342,7 +341,7 @@ def _tile_ranges(key, rows, cols, origin_x, origin_y, tile_m, x0, y0, x1, y1, lo
 
 
 @njit(cache=True, nogil=True)
-def _place_batch(tile_xy, tile_p, key, origin_x, origin_y, tile_m, rows, cols, ends, dirs, score_inv, offsets,
+def _place_batch(tile_xy, tile_p, key, origin_x, origin_y, tile_m, rows, cols, ends, score_inv, offsets,
                  first, begin, a, anchored, recorded, path, poses, how, cell_m, kernel, min_p, margin, match,
                  climb_stride, fine_stride, min_returns, min_hit_fraction, max_shift, max_turn, grid, sums,
                  touched, fit):  # pragma: no cover - compiled  # fmt: skip
@@ -369,7 +368,7 @@ def _place_batch(tile_xy, tile_p, key, origin_x, origin_y, tile_m, rows, cols, e
         if o1 - o0 < min_returns:
             how[k] = 2  # NO_RETURNS
             continue
-        e, d, w = ends[o0:o1].copy(), dirs[o0:o1].copy(), score_inv[o0:o1].copy()
+        e, w = ends[o0:o1].copy(), score_inv[o0:o1].copy()
         rx0, ry0, rx1, ry1 = end_point_box(start[0], start[1], math.cos(start[2]), math.sin(start[2]), e)
         reach = margin + max_shift  # the tiles: the window of a match that moves the start as far as kept
         n_ranges = _tile_ranges(key, rows, cols, origin_x, origin_y, tile_m, rx0 - reach, ry0 - reach, rx1 + reach,
@@ -389,18 +388,18 @@ def _place_batch(tile_xy, tile_p, key, origin_x, origin_y, tile_m, rows, cols, e
             used = _rasterise_range(tile_xy, tile_p, lo[r], hi[r], min_p, x0, y0, nx, ny, cell_m, grid, sums, touched,
                                     used)  # fmt: skip
         _to_means(sums, used)
-        ce, cd, cw = e, d, w  # the climb's returns and the fine levels' (`scanmatch._every`)
+        ce, cw = e, w  # the climb's returns and the fine levels' (`scanmatch._every`)
         if climb_stride > 1:
-            ce, cd, cw = e[::climb_stride].copy(), d[::climb_stride].copy(), w[::climb_stride].copy()
-        fe, fd, fw = ce, cd, cw
+            ce, cw = e[::climb_stride].copy(), w[::climb_stride].copy()
+        fe, fw = ce, cw
         if fine_stride > 1:
-            fe, fd, fw = ce[::fine_stride].copy(), cd[::fine_stride].copy(), cw[::fine_stride].copy()
+            fe, fw = ce[::fine_stride].copy(), cw[::fine_stride].copy()
         pose = start.copy()
         if used:
-            result = _fine_climb(pose, ce, cd, cw, fe, fd, fw, e, d, w, x0, y0, nx, ny, cell_m, kernel, grid, sums,
+            result = _fine_climb(pose, ce, cw, fe, fw, e, w, x0, y0, nx, ny, cell_m, kernel, grid, sums,
                                  match)  # fmt: skip
         else:  # no map in the window: every return misses
-            result = _finish(pose, e, d, x0, y0, nx, ny, cell_m, kernel, grid, sums, w, match[7], match[4], match[5],
+            result = _finish(pose, e, x0, y0, nx, ny, cell_m, kernel, grid, sums, w, match[7], match[4], match[5],
                              match[6], 0, match[12], match[12])  # fmt: skip
         for slot in range(used):
             grid[touched[slot]] = -1

@@ -8,8 +8,10 @@ GMapping's scan matcher (Grisetti, Stachniss & Burgard 2007; openslam_gmapping `
   (`cell_m`); each occupied cell keeps the mean of its points, as GMapping's cells keep the mean of
   their hits. The window is local to the scan, so the work does not grow with the map.
 - The score of a pose is sum_j exp(-d_j^2 / 2 sigma_j^2), d_j the distance from return j's end point to
-  the map among the (2k+1)^2 cells around it (k = `kernel`), counting only cells whose neighbour one
-  cell back along the beam is free (so a wall is not matched from its far side). When the two nearest
+  the map among the (2k+1)^2 cells around it (k = `kernel`). GMapping also skips a cell whose neighbour
+  one cell back along the beam is occupied (a wall's far side); on a point map that matches only the
+  front of the spread of a surface's points, which put every pose a few centimetres back along its
+  heading (docs/CHOICES.md), so every occupied cell counts. When the two nearest
   cell means lie within `line_pair_m` of each other (neighbouring samples of one surface), d_j is the
   distance across the line through them (point to line, as PL-ICP, Censi 2008); otherwise it is the
   distance to the nearest mean. A point-to-line distance does not depend on where the return falls
@@ -66,37 +68,35 @@ def _nearer(ex, ey, k, mean_xy, best, second, k1, k2):
 
 
 @njit(cache=True, inline="always")
-def _search_interior(ex, ey, cx, cy, fx, fy, ny, kernel, grid, mean_xy):
-    """`_nearest_two`'s search where every cell searched, and the one in front of it, lies in the raster."""
+def _search_interior(ex, ey, cx, cy, ny, kernel, grid, mean_xy):
+    """`_nearest_two`'s search where every cell searched lies in the raster."""
     best = -1.0
     second = -1.0
     k1 = 0
     k2 = 0
     for ix in range(cx - kernel, cx + kernel + 1):
-        row, front = ix * ny, (ix + fx) * ny + fy
+        row = ix * ny
         for iy in range(cy - kernel, cy + kernel + 1):
             k = grid[row + iy]
-            if k == _EMPTY or grid[front + iy] != _EMPTY:
-                continue  # empty, or the cell in front is occupied too: not a surface seen from here
+            if k == _EMPTY:
+                continue
             best, second, k1, k2 = _nearer(ex, ey, k, mean_xy, best, second, k1, k2)
     return best, second, k1, k2
 
 
 @njit(cache=True, inline="always")
-def _nearest_two(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy):
-    """The two nearest usable cell means to (ex, ey) (beam direction (ux, uy)): (best, second, k1, k2),
-    squared distances best <= second of cells k1, k2; -1 for none found."""
+def _nearest_two(ex, ey, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy):
+    """The two nearest cell means to (ex, ey) among the (2 kernel + 1)^2 cells around it: (best, second,
+    k1, k2), squared distances best <= second of cells k1, k2; -1 for none found."""
     inv = 1.0 / cell_m  # hoisted out of the loops by the compiler: a multiplication per return, not a division
     cx = int(math.floor((ex - x0) * inv))
     cy = int(math.floor((ey - y0) * inv))
-    fx = -int(math.floor(ux * 1.41421356 + 0.5))  # one cell back towards the sensor
-    fy = -int(math.floor(uy * 1.41421356 + 0.5))
-    if kernel < cx < nx - kernel - 1 and kernel < cy < ny - kernel - 1:
-        # every cell searched and every cell in front of one (one step further) lies in the raster: the
-        # same cells in the same order as below, without the bounds tests
+    if kernel <= cx < nx - kernel and kernel <= cy < ny - kernel:
+        # every cell searched lies in the raster: the same cells in the same order as below, without the
+        # bounds tests
         if kernel == 1:  # the default, as a constant: the compiler unrolls the 3 x 3 cells (5 % of the matcher)
-            return _search_interior(ex, ey, cx, cy, fx, fy, ny, 1, grid, mean_xy)
-        return _search_interior(ex, ey, cx, cy, fx, fy, ny, kernel, grid, mean_xy)
+            return _search_interior(ex, ey, cx, cy, ny, 1, grid, mean_xy)
+        return _search_interior(ex, ey, cx, cy, ny, kernel, grid, mean_xy)
     best = -1.0
     second = -1.0
     k1 = 0
@@ -110,9 +110,6 @@ def _nearest_two(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy):
             k = grid[ix * ny + iy]
             if k == _EMPTY:
                 continue
-            jx, jy = ix + fx, iy + fy
-            if 0 <= jx < nx and 0 <= jy < ny and grid[jx * ny + jy] != _EMPTY:
-                continue  # the cell in front is occupied too: not a surface seen from this side
             best, second, k1, k2 = _nearer(ex, ey, k, mean_xy, best, second, k1, k2)
     return best, second, k1, k2
 
@@ -141,10 +138,10 @@ def _across_d2(ex, ey, k1, tx, ty, t2, mean_xy):
 
 
 @njit(cache=True, inline="always")
-def _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2):
+def _best_d2(ex, ey, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2):
     """(squared distance from (ex, ey) to the map, True when it is taken across the line through the two
-    nearest usable cell means) or (-1, False) when no usable cell is found."""
-    best, second, k1, k2 = _nearest_two(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy)
+    nearest cell means) or (-1, False) when no occupied cell is found."""
+    best, second, k1, k2 = _nearest_two(ex, ey, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy)
     tx, ty, t2 = _surface_line(second, k1, k2, mean_xy, pair_d2)
     if t2 > 0.0:
         return _across_d2(ex, ey, k1, tx, ty, t2, mean_xy), True
@@ -152,19 +149,17 @@ def _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair
 
 
 @njit(cache=True, inline="always")
-def _return_d2(pose, c, s, ends, dirs, j, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2):
-    """_best_d2 of return j (end point and beam direction in the sensor frame) seen from `pose`
+def _return_d2(pose, c, s, ends, j, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2):
+    """_best_d2 of return j (end point in the sensor frame) seen from `pose`
     (c, s: cos and sin of its heading)."""
     lx, ly = ends[j, 0], ends[j, 1]
     ex = pose[0] + c * lx - s * ly
     ey = pose[1] + s * lx + c * ly
-    ux = c * dirs[j, 0] - s * dirs[j, 1]
-    uy = s * dirs[j, 0] + c * dirs[j, 1]
-    return _best_d2(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2)
+    return _best_d2(ex, ey, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2)
 
 
 @njit(cache=True)
-def _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, inv_2s2, pair_d2, inv_line, beat):
+def _score(pose, ends, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, inv_2s2, pair_d2, inv_line, beat):
     """Sum over returns j of exp(-d_j^2 w_j), w_j = inv_line for a point-to-line distance, else inv_2s2[j]
     (1 / 2 sigma_j^2 of return j).
 
@@ -178,7 +173,7 @@ def _score(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, inv_
     for j in range(count):
         if total + (count - j) < bound:
             return -1.0  # cannot reach `beat`
-        d2, line = _return_d2(pose, c, s, ends, dirs, j, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2)
+        d2, line = _return_d2(pose, c, s, ends, j, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, pair_d2)
         if d2 >= 0.0:
             total += fast_exp(-d2 * (inv_line if line else inv_2s2[j]))
     return total
@@ -294,7 +289,6 @@ def _scored(cand, seen_pose, seen):
 def _climb(
     pose,
     ends,
-    dirs,
     x0,
     y0,
     nx,
@@ -321,9 +315,7 @@ def _climb(
     best so far, which never decreases: it cannot win later either), keyed by the pose's exact numbers
     (the lattice of poses meets the raster's cell edges, so a pose one unit in the last place away is
     scored anew)."""
-    current = _score(
-        pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line, -np.inf
-    )
+    current = _score(pose, ends, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line, -np.inf)
     seen_pose = np.empty((1 + 6 * max_iter, 3))
     seen_score = np.empty(1 + 6 * max_iter)
     seen_pose[0, 0], seen_pose[0, 1], seen_pose[0, 2] = pose[0], pose[1], pose[2]
@@ -358,7 +350,7 @@ def _climb(
                 s = seen_score[e]
             else:
                 s = _score(
-                    cand, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line,
+                    cand, ends, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line,
                     current,
                 )  # fmt: skip
                 seen_pose[seen, 0], seen_pose[seen, 1], seen_pose[seen, 2] = cand[0], cand[1], cand[2]
@@ -404,7 +396,7 @@ def _solve3(normal, out):
 
 
 @njit(cache=True)
-def _pass(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line, like_inv,
+def _pass(pose, ends, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line, like_inv,
           miss_d2, normal):  # fmt: skip
     """One pass over the returns at `pose`: (score, log-likelihood, hits), and the Gauss-Newton normal
     equations of the score there in `normal` (h00, h01, h02, h11, h12, h22, g0, g1, g2).
@@ -428,9 +420,7 @@ def _pass(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score
         ey = pose[1] + s * lx + c * ly
         ax = c * lx - s * ly  # the end point relative to the pose: d e / d phi = (-ay, ax)
         ay = s * lx + c * ly
-        ux = c * dirs[j, 0] - s * dirs[j, 1]
-        uy = s * dirs[j, 0] + c * dirs[j, 1]
-        best, second, k1, k2 = _nearest_two(ex, ey, ux, uy, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy)
+        best, second, k1, k2 = _nearest_two(ex, ey, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy)
         if best < 0.0:
             like -= miss_d2 * like_inv
             continue
@@ -476,7 +466,7 @@ def _pass(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score
 
 
 @njit(cache=True)
-def _finish(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line, like_inv,
+def _finish(pose, ends, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2, inv_line, like_inv,
             miss_d2, iterations, tol_xy, tol_phi):  # fmt: skip
     """The score, log-likelihood and hits over all of `ends` at `pose`, after up to `iterations`
     Gauss-Newton steps on the score from it (`pose` moved in place): the normal equations of each pass
@@ -489,7 +479,7 @@ def _finish(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, sco
     trial = np.empty(9)
     delta = np.empty(3)
     cand = np.empty(3)
-    current, like, hits = _pass(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2,
+    current, like, hits = _pass(pose, ends, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2,
                                 inv_line, like_inv, miss_d2, normal)  # fmt: skip
     for _ in range(iterations):
         if not _solve3(normal, delta):
@@ -497,7 +487,7 @@ def _finish(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, sco
         sc, sl, sh = -1.0, 0.0, 0
         for _halving in range(3):  # the step, then half and a quarter of it, until the score rises
             cand[:] = pose + delta
-            sc, sl, sh = _pass(cand, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2,
+            sc, sl, sh = _pass(cand, ends, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, pair_d2,
                                inv_line, like_inv, miss_d2, trial)  # fmt: skip
             if sc > current:
                 break
@@ -513,8 +503,8 @@ def _finish(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, sco
 
 
 @njit(cache=True)
-def _fine_climb(pose, climb_ends, climb_dirs, climb_inv,
-                fine_ends, fine_dirs, fine_inv, ends, dirs, score_inv, x0, y0, nx, ny, cell_m, kernel,
+def _fine_climb(pose, climb_ends, climb_inv,
+                fine_ends, fine_inv, ends, score_inv, x0, y0, nx, ny, cell_m, kernel,
                 grid, mean_xy, match):  # fmt: skip
     """The fine climb from `pose` (in place) on the returns `climb_ends` (every match_climb_stride-th of `ends`),
     with the steps and levels of `match`, its last match[13] step sizes on `fine_ends` (thinner still), then
@@ -524,15 +514,15 @@ def _fine_climb(pose, climb_ends, climb_dirs, climb_inv,
     fine = min(int(match[13]), levels)
     if fine > 0:
         # the larger steps on the climb's returns, down to the last `fine` step sizes; those on `fine_ends`
-        _climb(pose, climb_ends, climb_dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, climb_inv, match[7],
+        _climb(pose, climb_ends, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, climb_inv, match[7],
                match[4], match[0], match[1], levels - fine, int(match[3]))  # fmt: skip
         f = 0.5 ** (levels - fine + 1)
-        _climb(pose, fine_ends, fine_dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, fine_inv, match[7], match[4],
+        _climb(pose, fine_ends, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, fine_inv, match[7], match[4],
                match[0] * f, match[1] * f, fine - 1, int(match[3]))  # fmt: skip
     else:
-        _climb(pose, climb_ends, climb_dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, climb_inv, match[7],
+        _climb(pose, climb_ends, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, climb_inv, match[7],
                match[4], match[0], match[1], levels, int(match[3]))  # fmt: skip
-    return _finish(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, match[7], match[4],
+    return _finish(pose, ends, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, match[7], match[4],
                    match[5], match[6], int(match[11]), match[12], match[12])  # fmt: skip
 
 
@@ -544,8 +534,8 @@ def _weigh(i, pose, result, out):
 
 
 @njit(cache=True)
-def _match_one(i, map_xy, map_p, lo, hi, pose0, climb_ends, climb_dirs, climb_inv,
-               fine_ends, fine_dirs, fine_inv, ends, dirs, score_inv, window,
+def _match_one(i, map_xy, map_p, lo, hi, pose0, climb_ends, climb_inv,
+               fine_ends, fine_inv, ends, score_inv, window,
                cell_m, kernel, min_p, match, grid, sums, touched, out):  # fmt: skip
     """Rasterise particle i's window of its map, climb the score from the motion sample, weigh the scan
     there; reset the raster."""
@@ -554,11 +544,11 @@ def _match_one(i, map_xy, map_p, lo, hi, pose0, climb_ends, climb_dirs, climb_in
     pose = pose0.copy()
     used = _rasterise(map_xy, map_p, lo, hi, min_p, x0, y0, nx, ny, cell_m, grid, sums, touched)
     if used:
-        result = _fine_climb(pose, climb_ends, climb_dirs, climb_inv,
-                             fine_ends, fine_dirs, fine_inv, ends, dirs, score_inv, x0, y0, nx, ny, cell_m,
+        result = _fine_climb(pose, climb_ends, climb_inv,
+                             fine_ends, fine_inv, ends, score_inv, x0, y0, nx, ny, cell_m,
                              kernel, grid, sums, match)  # fmt: skip
     else:  # no map here: every return misses
-        result = _finish(pose, ends, dirs, x0, y0, nx, ny, cell_m, kernel, grid, sums, score_inv, match[7], match[4],
+        result = _finish(pose, ends, x0, y0, nx, ny, cell_m, kernel, grid, sums, score_inv, match[7], match[4],
                          match[5], match[6], 0, match[12], match[12])  # fmt: skip
     _weigh(i, pose, result, out)
     for slot in range(used):
@@ -566,9 +556,9 @@ def _match_one(i, map_xy, map_p, lo, hi, pose0, climb_ends, climb_dirs, climb_in
 
 
 @njit(cache=True)
-def _coarse_start_one(i, map_xy, map_p, lo, hi, pose0, climb_ends, climb_dirs, climb_inv,
-                      fine_ends, fine_dirs, fine_inv, ends, dirs, score_inv,
-                      coarse_ends, coarse_dirs, coarse_inv, window, cell_m, kernel, min_p, match, grid, sums, touched,
+def _coarse_start_one(i, map_xy, map_p, lo, hi, pose0, climb_ends, climb_inv,
+                      fine_ends, fine_inv, ends, score_inv,
+                      coarse_ends, coarse_inv, window, cell_m, kernel, min_p, match, grid, sums, touched,
                       coarse_grid, coarse_sums, coarse_touched, out):  # fmt: skip
     """The second start, coarse to fine, for particle i whose fine match is in out[i]: climb from the
     motion sample down a pyramid of rasters, each match[8] times coarser than the one below
@@ -597,7 +587,6 @@ def _coarse_start_one(i, map_xy, map_p, lo, hi, pose0, climb_ends, climb_dirs, c
             _climb(
                 second,
                 coarse_ends,
-                coarse_dirs,
                 x0,
                 y0,
                 cnx,
@@ -617,8 +606,8 @@ def _coarse_start_one(i, map_xy, map_p, lo, hi, pose0, climb_ends, climb_dirs, c
         cc = cell_m * factor
         dx, dy = second[0] - out[i, 0], second[1] - out[i, 1]
         if dx * dx + dy * dy > cc * cc or abs(second[2] - out[i, 2]) > 0.5 * factor * match[1]:
-            result = _fine_climb(second, climb_ends, climb_dirs, climb_inv,
-                                 fine_ends, fine_dirs, fine_inv, ends, dirs, score_inv, x0, y0, nx, ny,
+            result = _fine_climb(second, climb_ends, climb_inv,
+                                 fine_ends, fine_inv, ends, score_inv, x0, y0, nx, ny,
                                  cell_m, kernel, grid, sums, match)  # fmt: skip
             if result[0] > out[i, 3] + match[10] * ends.shape[0]:
                 _weigh(i, second, result, out)
@@ -630,8 +619,8 @@ def _coarse_start_one(i, map_xy, map_p, lo, hi, pose0, climb_ends, climb_dirs, c
 
 
 @njit(cache=True, parallel=True, nogil=True)
-def _match_all(map_xy, map_p, lo, hi, poses, climb_ends, climb_dirs, climb_inv,
-               fine_ends, fine_dirs, fine_inv, ends, dirs, score_inv, windows,
+def _match_all(map_xy, map_p, lo, hi, poses, climb_ends, climb_inv,
+               fine_ends, fine_inv, ends, score_inv, windows,
                cell_m, kernel, min_p, match, grids, sums, touched):  # fmt: skip
     """_match_one for every particle, spread over the workers (one raster each)."""
     n = poses.shape[0]
@@ -642,17 +631,17 @@ def _match_all(map_xy, map_p, lo, hi, poses, climb_ends, climb_dirs, climb_inv,
             i = next_index(counter)  # the next particle not taken (gslam.workqueue)
             if i >= n:
                 break
-            _match_one(i, map_xy, map_p, lo[i], hi[i], poses[i], climb_ends, climb_dirs, climb_inv,
-                       fine_ends, fine_dirs, fine_inv, ends, dirs,
+            _match_one(i, map_xy, map_p, lo[i], hi[i], poses[i], climb_ends, climb_inv,
+                       fine_ends, fine_inv, ends,
                        score_inv, windows[i], cell_m, kernel, min_p, match, grids[w], sums[w], touched[w],
                        out)  # fmt: skip
     return out
 
 
 @njit(cache=True, parallel=True, nogil=True)
-def _coarse_start_all(chosen, map_xy, map_p, lo, hi, poses, climb_ends, climb_dirs, climb_inv,
-                      fine_ends, fine_dirs, fine_inv, ends, dirs,
-                      score_inv, coarse_ends, coarse_dirs, coarse_inv, windows, cell_m, kernel, min_p, match, grids,
+def _coarse_start_all(chosen, map_xy, map_p, lo, hi, poses, climb_ends, climb_inv,
+                      fine_ends, fine_inv, ends,
+                      score_inv, coarse_ends, coarse_inv, windows, cell_m, kernel, min_p, match, grids,
                       sums, touched, coarse_grids, coarse_sums, coarse_touched, out):  # fmt: skip
     """_coarse_start_one for the particles `chosen`, spread over the workers; updates `out` in place."""
     counter = np.zeros(1, dtype=np.int64)
@@ -662,9 +651,9 @@ def _coarse_start_all(chosen, map_xy, map_p, lo, hi, poses, climb_ends, climb_di
             if k >= chosen.shape[0]:
                 break
             i = chosen[k]
-            _coarse_start_one(i, map_xy, map_p, lo[i], hi[i], poses[i], climb_ends, climb_dirs, climb_inv,
-                              fine_ends, fine_dirs, fine_inv, ends, dirs,
-                              score_inv, coarse_ends, coarse_dirs, coarse_inv, windows[i], cell_m, kernel, min_p, match,
+            _coarse_start_one(i, map_xy, map_p, lo[i], hi[i], poses[i], climb_ends, climb_inv,
+                              fine_ends, fine_inv, ends,
+                              score_inv, coarse_ends, coarse_inv, windows[i], cell_m, kernel, min_p, match,
                               grids[w], sums[w], touched[w], coarse_grids[w], coarse_sums[w], coarse_touched[w],
                               out)  # fmt: skip
 
@@ -878,16 +867,15 @@ def match_and_weigh(
         step_xy_m, step_phi_rad, levels, max_iterations, score_sigma_m, like_sigma_m, miss_m, line_pair_m, f,
         coarse_levels, coarse_min_gain, polish_iterations, polish_tolerance, fine_levels if fine_stride > 1 else 0,
     )  # fmt: skip
-    dirs = ends / np.maximum(rng, 1e-12)[:, None]
     score_inv = 0.5 / (score_sigma_m**2 + (rng * score_sigma_rad) ** 2)
     map_xy = np.ascontiguousarray(map_xy, dtype=MAP_DTYPE)
     map_p = np.ascontiguousarray(map_p, dtype=MAP_DTYPE)
     lo = np.asarray(map_lo, dtype=np.int64)
     hi = np.asarray(map_hi, dtype=np.int64)
     grids = (workspace.grids, workspace.sums, workspace.touched)
-    thinned = _every(climb_stride, (ends, dirs, score_inv))
+    thinned = _every(climb_stride, (ends, score_inv))
     climb = (*thinned, *_every(fine_stride, thinned))
-    out = _match_all(map_xy, map_p, lo, hi, poses, *climb, ends, dirs, score_inv, windows, float(cell_m), int(kernel),
+    out = _match_all(map_xy, map_p, lo, hi, poses, *climb, ends, score_inv, windows, float(cell_m), int(kernel),
                      float(min_p), match, *grids)  # fmt: skip
     if f > 1 and max_iterations > 0:
         fit = out[:, 3] / len(ends)
@@ -895,7 +883,7 @@ def match_and_weigh(
         chosen = np.flatnonzero(fit <= coarse_gate * reference).astype(np.int64)
         if len(chosen):
             _coarse_start_all(
-                chosen, map_xy, map_p, lo, hi, poses, *climb, ends, dirs, score_inv,
+                chosen, map_xy, map_p, lo, hi, poses, *climb, ends, score_inv,
                 *_every(coarse_stride, thinned), windows, float(cell_m), int(kernel), float(min_p),
                 match, *grids, workspace.coarse_grids, workspace.coarse_sums, workspace.coarse_touched, out,
             )  # fmt: skip
