@@ -273,6 +273,40 @@ def test_metrics_on_constructed_trajectories():
     assert err["relations_trans_m"] == pytest.approx(0.0, abs=1e-12) and err["relations_used"] == 96
 
 
+def _drive_with_turns_in_place() -> np.ndarray:
+    """Base poses every 0.1 s: 1 m ahead, then a quarter turn in place, four times over."""
+    poses = [np.zeros(3)]
+    for _ in range(4):
+        for _ in range(10):
+            x, y, th = poses[-1]
+            poses.append(np.array([x + 0.1 * math.cos(th), y + 0.1 * math.sin(th), th]))
+        for _ in range(16):
+            poses.append(poses[-1] + [0.0, 0.0, math.pi / 32])
+    return np.array(poses)
+
+
+def test_the_relations_frame_is_found_from_turns_in_place():
+    """Relations of a sensor 5 cm ahead of the base, scored against the base's trajectory: every relation
+    that turns round is off by up to twice that, and the turns in place say where the frame lies."""
+    from pipelines.evaluation.evaluate import frame_note
+    from pipelines.evaluation.metrics import relations_frame_offset
+
+    base = _drive_with_turns_in_place()
+    t = np.arange(len(base)) * 0.1
+    sensor = base + np.column_stack([0.05 * np.cos(base[:, 2]), 0.05 * np.sin(base[:, 2]), np.zeros(len(base))])
+    pairs = [(i, j) for i in range(len(base)) for j in (i + 5, i + 30) if j < len(base)]
+    i1, i2 = np.array(pairs).T
+    relations = np.column_stack([t[i1], t[i2], relative_pose(sensor[i1], sensor[i2])])
+    offset, turns = relations_frame_offset(t, base, relations)
+    assert turns >= 10 and np.allclose(offset, [0.05, 0.0], atol=1e-9)
+    assert relations_error(t, base, relations)["relations_trans_m"] > 0.01
+    note = frame_note(t, base, relations)
+    assert "0.050 m ahead" in note and note.endswith("scored in that frame: 0.000 m")
+    # The sensor's own trajectory: the frames agree, nothing to say.
+    same, _ = relations_frame_offset(t, sensor, relations)
+    assert np.allclose(same, 0.0, atol=1e-9) and frame_note(t, sensor, relations) is None
+
+
 def test_filter_is_deterministic_for_a_seed():
     geom = ScanGeometry(181, -math.pi / 2, math.pi / 180, 30.0)
     rng = np.random.default_rng(5)

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from gslam.se2 import compose
 from mcaplog import channels as ch
 from mcaplog.mcapio import McapInput, Message, read_error
 from pipelines.errors import InputError
@@ -20,6 +21,7 @@ from pipelines.evaluation.metrics import (
     gps_rmse_aligned,
     pole_map_error,
     relations_error,
+    relations_frame_offset,
 )
 from pipelines.run.input_log import converted
 from pipelines.run.recorded_input import recorded_input as checked_input
@@ -240,6 +242,27 @@ def relations_note(given: int, matched: int, steps: int) -> str:
     return f"relations: {matched} of the {of} matched the run's scans ({within}) and are scored"
 
 
+FRAME_NOTE_M = 0.02
+"""The offset between the relations' frame and the trajectory's (`relations_frame_offset`) from which
+`gslam eval` says so."""
+
+
+def frame_note(t_s: np.ndarray, poses: np.ndarray, relations: np.ndarray) -> str | None:
+    """A note when the relations' frame lies `FRAME_NOTE_M` or more from the trajectory's, with the error
+    scored in the relations' frame; None otherwise (or when too few turns in place tell)."""
+    found = relations_frame_offset(t_s, poses, relations, RELATION_TOLERANCE_MS / 1e3)
+    if found is None or float(np.hypot(*found[0])) < FRAME_NOTE_M:
+        return None
+    (ox, oy), turns = found
+    moved = compose(poses, np.array([ox, oy, 0.0]))
+    fitted = relations_error(t_s, moved, relations, RELATION_TOLERANCE_MS / 1e3)["relations_trans_m"]
+    return (
+        f"relations' frame: its origin lies {ox:.3f} m ahead and {oy:.3f} m left of the trajectory's, by the "
+        f"{turns} turns in place of the reference (a sensor offset one of the two carries and the other does "
+        f"not); the relations scored in that frame: {fitted:.3f} m"
+    )
+
+
 def evaluate_result(result: Path, reference: Path | None = None) -> dict[str, Any]:
     """All metrics, None where the data does not allow one, with `interrupted`, `steps` and `notes`
     (what the figures mean for this run: partial, no GPS). The reference (input MCAP) is found from the
@@ -280,6 +303,10 @@ def evaluate_result(result: Path, reference: Path | None = None) -> dict[str, An
         for k in ("relations_trans_m", "relations_trans_std_m", "relations_rot_deg"):
             out[k] = rel.get(k)
         notes.append(relations_note(len(relations), rel["relations_used"], len(res.t_s)))
+        if len(res.t_s):
+            frame = frame_note(res.stamp_s, res.trajectory, relations)
+            if frame:
+                notes.append(frame)
     r = meta["result"]
     placement = r.get("placement")
     if isinstance(placement, dict) and placement.get("scans"):

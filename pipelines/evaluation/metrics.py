@@ -88,12 +88,11 @@ def relative_pose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(b[..., 2] - a[..., 2])], axis=-1)
 
 
-def relations_error(
-    t_s: np.ndarray, poses: np.ndarray, relations: np.ndarray, tolerance_s: float = 1e-3
-) -> dict[str, float]:
-    """Kuemmerle et al. (2009) metric: per relation (t1, t2, dx, dy, dyaw) the translational and absolute
-    rotational error of (estimated relation) (-) (reference relation); mean and std over relations
-    whose two times match trajectory times within `tolerance_s`."""
+def matched_relations(
+    t_s: np.ndarray, relations: np.ndarray, tolerance_s: float = 1e-3
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(i1, i2, ok): for each relation (t1, t2, ...), the trajectory indices nearest its two times, and
+    whether both lie within `tolerance_s` of them."""
     order = np.argsort(t_s, kind="stable")
     ts = t_s[order]
 
@@ -104,7 +103,16 @@ def relations_error(
 
     i1, ok1 = lookup(relations[:, 0])
     i2, ok2 = lookup(relations[:, 1])
-    ok = ok1 & ok2
+    return i1, i2, ok1 & ok2
+
+
+def relations_error(
+    t_s: np.ndarray, poses: np.ndarray, relations: np.ndarray, tolerance_s: float = 1e-3
+) -> dict[str, float]:
+    """Kuemmerle et al. (2009) metric: per relation (t1, t2, dx, dy, dyaw) the translational and absolute
+    rotational error of (estimated relation) (-) (reference relation); mean and std over relations
+    whose two times match trajectory times within `tolerance_s`."""
+    i1, i2, ok = matched_relations(t_s, relations, tolerance_s)
     if not ok.any():
         return {
             "relations_trans_m": float("nan"),
@@ -123,3 +131,49 @@ def relations_error(
         "relations_rot_deg": float(rot.mean()),
         "relations_used": int(ok.sum()),
     }
+
+
+TURN_MIN_RAD = 0.3
+"""A relation is a turn in place when it turns by at least this much ..."""
+TURN_MAX_SHIFT_M = 0.2
+"""... while its frame's origin moves by at most this much ..."""
+TURN_MAX_GAP_S = 10.0
+"""... within this time."""
+FRAME_MIN_TURNS = 10
+"""The fewest turns in place from which the relations' frame is located."""
+
+
+def turn_centre(relative: np.ndarray) -> np.ndarray:
+    """The point (x, y) in a frame that relative poses (K, 3) of that frame turn about: the least-squares
+    solution c of (I - R(dyaw)) c = (dx, dy) over them (a turn by dyaw about c moves the frame's origin
+    by (I - R(dyaw)) c)."""
+    c, s = np.cos(relative[:, 2]), np.sin(relative[:, 2])
+    a = np.zeros((2 * len(relative), 2))
+    a[0::2, 0], a[0::2, 1] = 1.0 - c, s
+    a[1::2, 0], a[1::2, 1] = -s, 1.0 - c
+    return np.linalg.lstsq(a, relative[:, :2].reshape(-1), rcond=None)[0]
+
+
+def relations_frame_offset(
+    t_s: np.ndarray, poses: np.ndarray, relations: np.ndarray, tolerance_s: float = 1e-3
+) -> tuple[np.ndarray, int] | None:
+    """Where the origin of the relations' frame lies in the trajectory's frame (x ahead, y left [m]), and
+    from how many turns in place; None with fewer than `FRAME_MIN_TURNS`.
+
+    A robot turning in place turns about one point of its body. The reference's turns locate that point in
+    the reference's frame, the trajectory's same turns locate it in the trajectory's; the difference is
+    where one frame's origin lies in the other: a sensor offset that one of them carries and the other
+    does not (a log that dropped its laser's mount). The relations metric compares the two frames' poses
+    as if they were one; such an offset adds about twice itself to every relation that turns round."""
+    i1, i2, ok = matched_relations(t_s, relations, tolerance_s)
+    ref = relations[:, [2, 3, 4]]
+    turn = (
+        ok
+        & (np.abs(ref[:, 2]) >= TURN_MIN_RAD)
+        & (np.hypot(ref[:, 0], ref[:, 1]) <= TURN_MAX_SHIFT_M)
+        & (np.abs(relations[:, 1] - relations[:, 0]) <= TURN_MAX_GAP_S)
+    )
+    if turn.sum() < FRAME_MIN_TURNS:
+        return None
+    est = relative_pose(poses[i1[turn]], poses[i2[turn]])
+    return turn_centre(est) - turn_centre(ref[turn]), int(turn.sum())
