@@ -402,7 +402,7 @@ def _pass(pose, ends, x0, y0, nx, ny, cell_m, kernel, grid, mean_xy, score_inv, 
     equations of the score there in `normal` (h00, h01, h02, h11, h12, h22, g0, g1, g2).
 
     The score is `_score`'s sum, term for term in the same order. The log-likelihood is sum_j -min(d_j^2,
-    miss_d2) like_inv, a return with no usable cell near it counting miss_d2 (GMapping's
+    miss_d2) like_inv, a return with no occupied cell near it counting miss_d2 (GMapping's
     `nullLikelihood`); hits counts the others. The normal equations are those of iteratively reweighted
     least squares on the score (its stationary points are those of sum_j omega_j d_j^2 with
     omega_j = w_j exp(-w_j d_j^2) held fixed, Welsch's M-estimator): each return's residual linearised in

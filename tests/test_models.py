@@ -18,6 +18,7 @@ from gslam.motion import ackermann_step, apply_odometry, integrate_ackermann, od
 from gslam.pointmap import FlatMaps, PointMap
 from gslam.resampling import effective_sample_size, normalise_log_weights, residual_systematic_resampling
 from gslam.scan import Scan, ScanGeometry, inverse_measure, measure
+from gslam.se2 import compose
 from gslam.vehicle import VEHICLE_PRESETS, vehicle_preset
 from pipelines.evaluation.metrics import align_se2, gps_mean_error, gps_rmse_aligned, relations_error, relative_pose
 
@@ -293,7 +294,7 @@ def test_the_relations_frame_is_found_from_turns_in_place():
 
     base = _drive_with_turns_in_place()
     t = np.arange(len(base)) * 0.1
-    sensor = base + np.column_stack([0.05 * np.cos(base[:, 2]), 0.05 * np.sin(base[:, 2]), np.zeros(len(base))])
+    sensor = compose(base, np.array([0.05, 0.0, 0.0]))
     pairs = [(i, j) for i in range(len(base)) for j in (i + 5, i + 30) if j < len(base)]
     i1, i2 = np.array(pairs).T
     relations = np.column_stack([t[i1], t[i2], relative_pose(sensor[i1], sensor[i2])])
