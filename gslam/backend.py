@@ -27,13 +27,14 @@ from __future__ import annotations
 import math
 import time
 from collections import OrderedDict
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 
 from gslam.loopclosure import ClosureSettings, Submap, match_scan, voxel_filter
 from gslam.motion import wrap_angle
-from gslam.posegraph import CLOSURE, SEQUENTIAL, Edge, optimise_robust, residuals
+from gslam.posegraph import CLOSURE, PREVIOUS, SEQUENTIAL, Edge, optimise_robust, residuals
 from gslam.scan import transform_points
 from gslam.se2 import compose, interpolate, inverse
 
@@ -87,7 +88,31 @@ class BackEndSettings:
     reject_chi2: float = 16.0
     cached_submaps: int = 4
     """Submap fields kept built (each a few MB); the others are rebuilt when searched again."""
+    locate_region_m: float = 8.0
+    """`locate` searches the map in regions: a grid of this spacing over the nodes, each region's field built
+    of the returns of the nodes within twice it, searched this far around its centre (every place a node
+    stood is within the window of some region, and the scan's view in that region's field)."""
+    session_sigma_xy_m: float = 0.5
+    session_sigma_phi_rad: float = 0.1
+    """The link between the last node of one mapping run and the first of the run that continues it
+    (`begin_session`): where the new run found itself in the old map, loosely, so that the closures
+    between the runs, not the start, say how they fit."""
     closure: ClosureSettings = field(default_factory=ClosureSettings)
+
+
+class PreviousGraph(NamedTuple):
+    """The graph of earlier mapping runs, as `PoseGraphBackEnd.add_previous` takes it."""
+
+    poses: np.ndarray
+    """(M, 3) the nodes' optimised laser poses."""
+    points_world: list[np.ndarray]
+    """Each node's returns (K, 2) in the map frame."""
+    steps: np.ndarray
+    """(M,) each node's step in its own run."""
+    sessions: np.ndarray
+    """(M,) the run each node belongs to (0: the first)."""
+    closures: list[tuple[int, int]]
+    closure_scores: list[float]
 
 
 @dataclass
@@ -118,7 +143,9 @@ class ClosureRecord:
 class PoseGraphBackEnd:
     """Nodes added one at a time (`add_node`), closures searched as they come, the graph optimised."""
 
-    def __init__(self, settings: BackEndSettings = BackEndSettings()) -> None:
+    def __init__(self, settings: BackEndSettings = BackEndSettings(), first_session: int = 0) -> None:
+        """`first_session`: the number of the mapping run the first node belongs to (the runs before it, in
+        another map, are not in this graph)."""
         self.settings = settings
         self.steps: list[int] = []  # the step (scan index in the run) of each node
         self.front: list[np.ndarray] = []  # the front end's pose of each node
@@ -136,8 +163,12 @@ class PoseGraphBackEnd:
         self._unoptimised = 0  # closures added since the last optimisation
         self._urgent = False  # a closure waits that the estimate misses (`optimise_chi2`)
         self._optimised_at = -(10**9)  # the node count at the last optimisation
+        self._session_start = 0  # the first node of the current run (its searches count from it)
         self.inconsistent = 0  # closures kept that the front end misses (`finish`)
         self.applied = False  # whether the optimised graph corrects the front end (`finish`)
+        self.session: list[int] = []  # the mapping run each node belongs to (0: the first)
+        self._session = int(first_session)
+        self._new_session = False  # the next node starts a run (`begin_session`)
 
     def __len__(self) -> int:
         return len(self.steps)
@@ -153,24 +184,82 @@ class PoseGraphBackEnd:
         rng = np.hypot(points_xy[:, 0], points_xy[:, 1]) if len(points_xy) else np.empty(0)
         within = np.asarray(points_xy, dtype=float).reshape(-1, 2)[rng <= s.closure.max_range_m]
         pts = voxel_filter(within, s.closure.voxel_m)
+        self._append(step, pose, pts, relative)
+        k = len(self.steps) - 1
+        if (k - self._session_start) % s.search_every == 0:
+            self._search(k)
+
+    def _append(self, step: int, pose: np.ndarray, pts: np.ndarray, relative: np.ndarray | None = None) -> None:
+        """Node k = len(self) at the front end's `pose`, tied to the node before (at the link's loose sigmas
+        when it starts a mapping run); its submap closed when full."""
+        s = self.settings
         k = len(self.steps)
+        first = self.submaps[-1][1] if self.submaps else 0
+        if self._new_session and k > first:  # a submap holds one run's scans
+            self.submaps.append((first, k))
+            first = k
         if k:
             rel = compose(inverse(self.front[-1]), pose) if relative is None else np.asarray(relative, dtype=float)
-            self.edges.append(Edge(k - 1, k, rel, self._sequential_sigmas(rel), SEQUENTIAL))
-            self.travel.append(self.travel[-1] + float(np.hypot(rel[0], rel[1])))
+            if self._new_session:
+                sig = np.array([s.session_sigma_xy_m, s.session_sigma_xy_m, s.session_sigma_phi_rad])
+                # the runs lie apart in time: every submap of the earlier ones may be searched at once
+                self.travel.append(self.travel[-1] + s.min_separation_m)
+            else:
+                sig = self._sequential_sigmas(rel)
+                self.travel.append(self.travel[-1] + float(np.hypot(rel[0], rel[1])))
+            self.edges.append(Edge(k - 1, k, rel, sig, SEQUENTIAL))
             est = compose(self.estimate[-1], rel)
         else:
             self.travel.append(0.0)
             est = pose
+        self._new_session = False
         self.steps.append(int(step))
+        self.session.append(self._session)
         self.front.append(pose)
         self.points.append(pts)
         self.estimate = np.vstack([self.estimate, est[None]])
-        first = self.submaps[-1][1] if self.submaps else 0
         if k + 1 - first >= s.submap_nodes:
             self.submaps.append((first, k + 1))
-        if k % s.search_every == 0:
-            self._search(k)
+
+    def begin_session(self) -> None:
+        """The nodes added from here are a new mapping run's, continuing the graph of the earlier ones
+        (`add_previous`): their first is tied to the last node before loosely (`session_sigma_xy_m`), and they
+        may search every submap of the earlier runs from the start."""
+        if self.steps:
+            self._session = self.session[-1] + 1
+            self._new_session = True
+        self._session_start = len(self.steps)
+
+    def add_previous(
+        self,
+        poses: np.ndarray,
+        points_world: list[np.ndarray],
+        steps: np.ndarray,
+        sessions: np.ndarray,
+        closures: list[tuple[int, int]],
+        closure_scores: list[float] | None = None,
+    ) -> None:
+        """The graph of earlier mapping runs, as a result saved it: its optimised node poses (M, 3, the laser's),
+        each node's returns in the map frame, its step in its own run and the run it belongs to; and the node
+        pairs of its closures. They enter as nodes that search nothing (they were searched in their own run),
+        tied by their relative poses as optimised, each closure kept as a constraint of a closure's sigmas at
+        the same, so that the old graph keeps its shape unless the new run's closures say otherwise."""
+        s = self.settings
+        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+        base = len(self.steps)
+        for k in range(len(poses)):
+            if k and sessions[k] != sessions[k - 1]:
+                self._session = int(sessions[k - 1])
+                self.begin_session()
+            self._session = int(sessions[k])
+            local = transform_points(inverse(poses[k]), np.asarray(points_world[k], dtype=float).reshape(-1, 2))
+            self._append(int(steps[k]), poses[k], voxel_filter(local, s.closure.voxel_m))
+        sig = np.array([s.closure_sigma_xy_m, s.closure_sigma_xy_m, s.closure_sigma_phi_rad])
+        scores = list(closure_scores or []) + [0.0] * len(closures)
+        for (i, j), score in zip(closures, scores, strict=False):
+            rel = compose(inverse(poses[i]), poses[j])
+            self.edges.append(Edge(base + int(i), base + int(j), rel, sig, PREVIOUS, float(score)))
+        self.begin_session()
 
     def _sequential_sigmas(self, rel: np.ndarray) -> np.ndarray:
         """A sequential edge's sigmas (m, m, rad): growing with the motion `rel` it measures."""
@@ -255,6 +344,68 @@ class PoseGraphBackEnd:
             len(self.steps) - self._optimised_at >= s.optimise_gap_nodes
         ):
             self.optimise()
+
+    def locate(self, scans: list[np.ndarray]) -> list[tuple[np.ndarray, float] | None]:
+        """Where each scan (its returns (K, 2) in the sensor frame) stands in the graph's map when nothing is
+        known of its pose, as Cartographer finds a new trajectory in an old map: searched by branch and bound
+        over every heading and the whole map, region by region (`_regions`: the returns of every node within
+        `locate_region_m` of a point of a grid of that spacing, so that a scan's view is in the field whole,
+        not a submap's few metres of it). Per scan, (its pose in the map frame, its score), or None where no
+        region holds a match that scores `min_score`, or a match as good stands elsewhere (`ambiguity_m`,
+        `ambiguity_ratio`: a look-alike place, in the same region or another)."""
+        s = self.settings
+        clouds = []
+        for points_xy in scans:
+            pts = np.asarray(points_xy, dtype=float).reshape(-1, 2)
+            clouds.append(voxel_filter(pts[np.hypot(pts[:, 0], pts[:, 1]) <= s.closure.max_range_m], s.closure.voxel_m))
+        found: list[list[tuple[np.ndarray, float, bool]]] = [[] for _ in scans]
+        for centre, region in self._regions():
+            settings = replace(s.closure, window_m=s.locate_region_m, window_rad=math.pi)
+            guess = np.array([centre[0], centre[1], 0.0])
+            for k, pts in enumerate(clouds):
+                if len(pts) < 10:
+                    continue
+                match = match_scan(region, pts, guess, settings)
+                if match is not None:
+                    found[k].append((match.pose, match.score, match.ambiguous))
+        return [self._unambiguous(f) for f in found]
+
+    def _unambiguous(self, found: list[tuple[np.ndarray, float, bool]]) -> tuple[np.ndarray, float] | None:
+        """The best of a scan's matches in the regions, unless its own region holds a rival (`Match.ambiguous`)
+        or another region a match as good `ambiguity_m` from it."""
+        if not found:
+            return None
+        c = self.settings.closure
+        found = sorted(found, key=lambda f: -f[1])
+        pose, score, rival = found[0]
+        if rival:
+            return None
+        for other, other_score, _ in found[1:]:
+            apart = math.hypot(other[0] - pose[0], other[1] - pose[1]) >= c.ambiguity_m
+            if apart and other_score >= c.ambiguity_ratio * score:
+                return None  # the same scan fits another place nearly as well
+        return pose, score
+
+    def _regions(self):
+        """(centre (2,), field) of each region of the map `locate` searches: the points of a grid of spacing
+        `locate_region_m` over the nodes' positions that have a node within that distance, each with the
+        field of the returns (map frame) of the nodes within twice it. Built one at a time."""
+        s = self.settings
+        est = np.asarray(self.estimate).reshape(-1, 3)
+        if len(est) == 0:
+            return
+        step = s.locate_region_m
+        lo = np.floor(est[:, :2].min(axis=0) / step) * step
+        hi = est[:, :2].max(axis=0)
+        for x in np.arange(lo[0], hi[0] + step, step):
+            for y in np.arange(lo[1], hi[1] + step, step):
+                d = np.hypot(est[:, 0] - x, est[:, 1] - y)
+                if not np.any(d <= step):
+                    continue
+                near = np.flatnonzero(d <= 2 * step)
+                pts = np.concatenate([transform_points(est[k], self.points[k]) for k in near])
+                if len(pts):
+                    yield np.array([x, y]), Submap.build(pts, s.closure)
 
     def _where(self, c: ClosureRecord) -> np.ndarray:
         """Where closure `c` puts its node, by the current estimate of its anchor."""
@@ -364,9 +515,11 @@ class PoseGraphBackEnd:
             "y_m": est[:, 1].tolist(),
             "yaw_rad": est[:, 2].tolist(),
             "step": [int(s) for s in self.steps],
+            "session": [int(s) for s in self.session],
             "sequential": [[e.i, e.j] for e in self.edges if e.kind == SEQUENTIAL],
-            "closures": [[c.anchor, c.node] for c in kept],
-            "closure_scores": [round(c.score, 4) for c in kept],
+            "closures": [[c.anchor, c.node] for c in kept] + [[e.i, e.j] for e in self.edges if e.kind == PREVIOUS],
+            "closure_scores": [round(c.score, 4) for c in kept]
+            + [round(e.score, 4) for e in self.edges if e.kind == PREVIOUS],
             "rejected": [[c.anchor, c.node] for c in rejected],
             "rejected_scores": [round(c.score, 4) for c in rejected],
         }
@@ -378,6 +531,9 @@ class PoseGraphBackEnd:
         rejected = [c for c in self.closures if c.rejected]
         return {
             "nodes": len(self.steps),
+            "sessions": len(set(self.session)),
+            "nodes_of_earlier_runs": sum(n != self._session for n in self.session),
+            "closures_between_runs": sum(self.session[c.anchor] != self.session[c.node] for c in kept),
             "submaps": len(self.submaps),
             "sequential_edges": sum(e.kind == SEQUENTIAL for e in self.edges),
             "searches": self.searches,
@@ -395,10 +551,14 @@ class PoseGraphBackEnd:
             "optimise_s": round(float(sum(self.optimisations)), 3),
         }
 
-    def correct_trajectory(self, front_poses: np.ndarray) -> np.ndarray:
-        """Every step's pose (T, 3) moved with the optimised nodes: each scan's front-end pose relative to
-        the node before and the node after, blended by its place between them."""
-        return correct_between(front_poses, np.asarray(self.steps), np.asarray(self.front), self.estimate)
+    def correct_trajectory(self, front_poses: np.ndarray, session: int | None = None) -> np.ndarray:
+        """Every step's pose (T, 3) of a mapping run (default: the last) moved with its optimised nodes: each
+        scan's front-end pose relative to the node before and the node after, blended by its place between
+        them."""
+        run = self.session[-1] if session is None and self.session else session
+        mine = np.flatnonzero(np.asarray(self.session) == run) if self.session else np.empty(0, dtype=int)
+        front = np.asarray(self.front).reshape(-1, 3)
+        return correct_between(front_poses, np.asarray(self.steps)[mine], front[mine], self.estimate[mine])
 
 
 def move_with_nodes(xy: np.ndarray, node: np.ndarray, front: np.ndarray, estimate: np.ndarray) -> np.ndarray:

@@ -11,11 +11,11 @@ import numpy as np
 
 from gslam import mapupdate
 from gslam.ancestry import AncestryTree
-from gslam.backend import BackEndSettings, PoseGraphBackEnd
+from gslam.backend import BackEndSettings, PoseGraphBackEnd, PreviousGraph
 from gslam.config import FilterConfig
 from gslam.motion import wrap_angle, wrap_angle_scalar
 from gslam.placement import Placement, PlacementLimits, place_scans
-from gslam.pointmap import PointMap, distinct_maps
+from gslam.pointmap import MAP_DTYPE, PointMap, cell_keys, distinct_maps
 from gslam.resampling import continue_from_parents, effective_sample_size, reweight_and_resample
 from gslam.scan import Scan
 from gslam.scanmatch import MatchSettings, MatchWorkspace, match_and_weigh
@@ -166,17 +166,46 @@ class GSlamFilter:
             fine_levels=min(cfg.match_fine_levels, cfg.place_levels + 1),
         )
 
+    def seed_map(self, xy: np.ndarray, p: np.ndarray) -> None:
+        """Start every particle's map from a map built before (`gslam process --continue`): points (K, 2)
+        and their probabilities (K,). The map keeps one point per cell (`cell_size_m`), the most probable
+        one where a saved map, moved by its pose graph, holds several; sorted by cell as the updates keep it."""
+        xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+        p = np.asarray(p, dtype=float).reshape(-1)
+        keys = cell_keys(xy, self.cfg.cell_size_m)
+        order = np.lexsort((-p, keys))  # by cell, the most probable first
+        keys, xy, p = keys[order], xy[order], p[order]
+        first = np.ones(len(keys), dtype=bool)
+        first[1:] = keys[1:] != keys[:-1]
+        if self.cfg.max_points_per_cell > 1:
+            rank = np.arange(len(keys)) - np.maximum.accumulate(np.where(first, np.arange(len(keys)), 0))
+            first = rank < self.cfg.max_points_per_cell
+        seeded = PointMap(
+            np.ascontiguousarray(xy[first], dtype=MAP_DTYPE), np.ascontiguousarray(p[first], dtype=MAP_DTYPE)
+        )
+        self.maps = [seeded] * self.cfg.particles
+        self._layout = None
+        self._points_total = len(seeded) * self.cfg.particles
+
     def close_loops(
-        self, scans: Callable[[list[int]], Iterable[Scan]], settings: BackEndSettings | None = None
+        self,
+        scans: Callable[[list[int]], Iterable[Scan]],
+        settings: BackEndSettings | None = None,
+        previous: PreviousGraph | None = None,
+        first_session: int = 0,
     ) -> PoseGraphBackEnd:
         """The pose graph under the best particle's trajectory (placed, if `place_every_scan` ran) closed by
         loop closures (`gslam.backend`); where the graph corrects the front end (`PoseGraphBackEnd.applied`),
         `best_trajectory()` then gives the optimised trajectory and `map_points(best)` the best particle's
         map moved with it (each point with the node whose scan returns lie nearest it). `scans(steps)`: the
-        run's scans at those steps (increasing). The maps and the particles are not changed."""
+        run's scans at those steps (increasing). The maps and the particles are not changed. `previous`: the
+        graph of the earlier mapping runs this one continues, whose nodes the graph starts with
+        (`PoseGraphBackEnd.add_previous`); `first_session`: this run's number where it continues none."""
         best = self.best_particle()
         times, front = self.best_trajectory()
-        backend = PoseGraphBackEnd(settings or BackEndSettings())
+        backend = PoseGraphBackEnd(settings or BackEndSettings(), first_session)
+        if previous is not None:
+            backend.add_previous(*previous)
         steps = backend.node_steps(front)
         for step, scan in zip(steps, scans(list(steps)), strict=True):
             backend.add_node(step, front[step], self.node_points(scan))

@@ -20,7 +20,8 @@ import numpy as np
 
 from gslam.se2 import compose, inverse
 
-SEQUENTIAL, CLOSURE = 0, 1
+SEQUENTIAL, CLOSURE, PREVIOUS = 0, 1, 2
+"""PREVIOUS: a closure of an earlier mapping run, kept at its optimised relative pose (no robust loss)."""
 
 
 @dataclass

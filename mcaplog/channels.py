@@ -40,6 +40,9 @@ SLAM_MAP_FINAL = "/slam/map_final"
 SLAM_STATS = "/slam/stats"
 SLAM_LANDMARKS = "/slam/landmarks"  # FastSLAM: landmark means and covariances (final, best particle)
 SLAM_GRAPH = "/slam/graph"  # the pose graph (final): nodes, sequential edges, loop closures kept and rejected
+SLAM_GRAPH_SCANS = "/slam/graph_scans"  # each graph node's returns in the map frame (final): what --continue reads
+SLAM_SESSIONS = "/slam/sessions"  # the earlier mapping runs a continued result goes on from (final)
+SLAM_EARLIER_MAPS = "/slam/earlier_maps"  # maps of earlier runs a later one could not find itself in (final)
 SLAM_GRID = "/slam/grid"  # grid methods: occupancy grid (final, best particle)
 MAP_OCCUPANCY = "/map/occupancy"  # `gslam process --occupancy`: trinary navigation grid (final)
 
@@ -128,11 +131,39 @@ SLAM_GRAPH_SCHEMA: dict[str, Any] = {
         "y_m": {"type": "array", "items": {"type": "number"}},
         "yaw_rad": {"type": "array", "items": {"type": "number"}},
         "step": {"type": "array", "items": {"type": "integer"}},
+        "session": {"type": "array", "items": {"type": "integer"}},
         "sequential": {"type": "array", "items": {"type": "array", "items": {"type": "integer"}}},
         "closures": {"type": "array", "items": {"type": "array", "items": {"type": "integer"}}},
         "closure_scores": {"type": "array", "items": {"type": "number"}},
         "rejected": {"type": "array", "items": {"type": "array", "items": {"type": "integer"}}},
         "rejected_scores": {"type": "array", "items": {"type": "number"}},
+    },
+}
+
+SLAM_SESSIONS_SCHEMA: dict[str, Any] = {
+    "title": "gslam.Sessions",
+    "description": "The earlier mapping runs of a continued map (`gslam process --continue`), oldest first: "
+    "each run's index, input, the map it belongs to (0: the result's map, in whose frame it lies; k >= 1: "
+    "the k-th message of /slam/earlier_maps, in that map's frame), and its final trajectory (log times [s], "
+    "the base's x [m], y [m], yaw [rad], moved with the final pose graph).",
+    "type": "object",
+    "properties": {
+        "sessions": {
+            "type": "array",
+            "items": {
+                "type": "object",
+                "properties": {
+                    "session": {"type": "integer"},
+                    "input": {"type": "string"},
+                    "map": {"type": "integer"},
+                    "connected": {"type": "boolean"},
+                    "t_s": {"type": "array", "items": {"type": "number"}},
+                    "x_m": {"type": "array", "items": {"type": "number"}},
+                    "y_m": {"type": "array", "items": {"type": "number"}},
+                    "yaw_rad": {"type": "array", "items": {"type": "number"}},
+                },
+            },
+        }
     },
 }
 
@@ -153,6 +184,11 @@ STATS_SCHEMA: dict[str, Any] = {
         "matched": {"type": "integer", "description": "particles whose scan match was kept"},
     },
 }
+
+
+def session_trajectory(k: int) -> str:
+    """The channel of earlier mapping run k's final trajectory in a continued result (foxglove.PosesInFrame)."""
+    return f"/slam/sessions/{k}/trajectory"
 
 
 def _json_float(v: float) -> str:
@@ -352,6 +388,33 @@ def navigation_grid(
     msg.fields.add(name="occupancy", offset=0, type=PackedElementField.INT8)
     msg.data = rows.tobytes()
     return msg
+
+
+_NODE_FIELDS = (("x", 0, PackedElementField.FLOAT32), ("y", 4, PackedElementField.FLOAT32),
+                ("z", 8, PackedElementField.FLOAT32), ("node", 12, PackedElementField.UINT32))  # fmt: skip
+
+
+def node_returns_cloud(t_s: float, xy: np.ndarray, node: np.ndarray, frame_id: str = MAP_FRAME) -> PointCloud:
+    """A foxglove.PointCloud of the pose graph's scans: float32 x, y, z=0 and the uint32 index of the node
+    each return belongs to."""
+    msg = PointCloud(frame_id=frame_id, point_stride=16)
+    msg.timestamp.CopyFrom(timestamp(t_s))
+    msg.pose.orientation.w = 1.0
+    for name, offset, kind in _NODE_FIELDS:
+        msg.fields.add(name=name, offset=offset, type=kind)
+    buf = np.zeros(len(xy), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("node", "<u4")])
+    buf["x"], buf["y"], buf["node"] = np.asarray(xy)[:, 0], np.asarray(xy)[:, 1], node
+    msg.data = buf.tobytes()
+    return msg
+
+
+def node_returns_arrays(msg: PointCloud) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of `node_returns_cloud`: (xy (K, 2) float64, node (K,) int64)."""
+    names = [f.name for f in msg.fields]
+    if names != [n for n, _, _ in _NODE_FIELDS] or msg.point_stride != 16 or len(msg.data) % 16:
+        raise ValueError("the graph's scans are not x, y, z, node points")
+    buf = np.frombuffer(msg.data, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("node", "<u4")])
+    return np.column_stack([buf["x"], buf["y"]]).astype(float), buf["node"].astype(np.int64)
 
 
 def cloud_arrays(msg: PointCloud) -> tuple[np.ndarray, np.ndarray]:

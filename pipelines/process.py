@@ -13,12 +13,16 @@ from pathlib import Path
 import numpy as np
 
 from gslam import __version__
+from gslam.backend import PoseGraphBackEnd
+from gslam.scan import transform_points
+from pipelines.errors import InputError
 from pipelines.outputs.mcap_result import McapResultWriter
 from pipelines.outputs.rerun_result import RerunResultWriter
 from pipelines.outputs.writer import OccupancyMap, ResultWriter, RunEnd, RunStart
 from pipelines.outputs.writer_child import WriterChild, usage
 from pipelines.run import interrupts
 from pipelines.run.compile_time import COMPILING_NOTE, watching_compiles
+from pipelines.run.continuation import PreviousRun, Start, find_start, load_previous
 from pipelines.run.input_log import InputLog
 from pipelines.run.recorded_input import fingerprint
 from pipelines.run.runner import RunConfig, SlamRunner
@@ -90,6 +94,18 @@ def _abort(writers: list[ResultWriter]) -> None:
         raise failure
 
 
+@dataclass(frozen=True)
+class Continuation:
+    """`gslam process --continue PREVIOUS`: the result to go on from, and where the new run starts in its map
+    (the base's pose; None: found by the localiser)."""
+
+    previous: Path
+    initial_pose: tuple[float, float, float] | None = None
+    if_lost: str = "stop"
+    """When the run cannot find itself in the map: "stop" (an error, nothing written), or "new": map it as a
+    new trajectory in its own frame, the earlier map and trajectories kept in the result apart from it."""
+
+
 @dataclass
 class _OpenRun:
     """A run whose outputs are open: the input, the runner over it and the writers it feeds."""
@@ -100,6 +116,10 @@ class _OpenRun:
     cfg: RunConfig
     output_path: Path
     rrd_path: Path | None
+    previous: PreviousRun | None = None
+    """The run this one continues (`--continue`)."""
+    connected: bool = True
+    """Whether this run found itself in the previous run's map and mapped on in it (else a new trajectory)."""
 
     @property
     def written(self) -> str:
@@ -136,14 +156,16 @@ def process(
     command: str | None = None,
     rrd_writer: WriterChild | None = None,
     notice: Callable[[str], None] | None = None,
+    continuation: Continuation | None = None,
 ) -> ProcessSummary:
     """Run the filter over `input_path` into the result MCAP `output_path` and the Rerun recording
     `rrd_path` (None: none). Ctrl-C or an error mid-run still finishes the outputs with the steps done so
     far (the error is re-raised after). `rrd_writer`: the recording's child writer, started beforehand by
     `writer_child.start_rerun_writer` (aborted here if the run cannot start). `notice(text)` tells the
     user why the run waits (the kernels' first compile, the occupancy grid); compile time is left out of
-    the recorded step times and recorded as `compile_s`."""
-    run = _open(input_path, output_path, rrd_path, cfg, command, rrd_writer)
+    the recorded step times and recorded as `compile_s`. `continuation`: go on from an earlier result's map
+    and graph (`pipelines.run.continuation`)."""
+    run = _open(input_path, output_path, rrd_path, cfg, command, rrd_writer, continuation, notice)
     try:
         times = _run_steps(run, progress, notice)
     except BaseException:  # a signal before its loop could catch it: the outputs are dropped, not orphaned
@@ -167,9 +189,11 @@ def _open(
     cfg: RunConfig,
     command: str | None,
     rrd_writer: WriterChild | None,
+    continuation: Continuation | None = None,
+    notice: Callable[[str], None] | None = None,
 ) -> _OpenRun:
-    """Open the input, build the runner and start every writer with the run's metadata; on any failure
-    every writer drops its file."""
+    """Open the input (and the result it continues, finding the run in its map), build the runner and start
+    every writer with the run's metadata; on any failure every writer drops its file."""
     # The result MCAP first: the writers finish in reverse order, so that its record holds the figures
     # the others add to it.
     writers: list[ResultWriter] = [McapResultWriter(output_path, cfg.map_snapshot_every)]
@@ -181,16 +205,55 @@ def _open(
     try:
         log = InputLog(input_path)
         skip_blas_probe()
-        runner = SlamRunner(log, cfg)
+        previous, start = (None, None) if continuation is None else _continue(continuation, log, cfg, notice)
+        connected = start is None or start.pose is not None
+        runner = SlamRunner(log, cfg, start=None if start is None else start.pose)
+        if previous is not None and connected:
+            runner.filter.seed_map(previous.map_xy, previous.map_p)
         metadata = _run_metadata(input_path, log, runner, cfg, command)
+        if previous is not None:
+            metadata["continuation"] = {
+                "previous": str(previous.path.resolve()),
+                "earlier_runs": len(previous.sessions),
+                "graph_nodes": 0 if previous.node_poses is None else len(previous.node_poses),
+                "start": start.record(),
+                "connected": connected,
+            }
         for w in writers:
             w.start(RunStart(log, metadata))
-        return _OpenRun(log, runner, writers, cfg, Path(output_path), Path(rrd_path) if rrd_path else None)
+        rrd = Path(rrd_path) if rrd_path else None
+        return _OpenRun(log, runner, writers, cfg, Path(output_path), rrd, previous, connected)
     except BaseException:
         _abort(writers)
         if runner is not None:
             runner.stop_live()  # its worker thread ends with the run that could not start
         raise
+
+
+def _continue(
+    continuation: Continuation, log: InputLog, cfg: RunConfig, notice: Callable[[str], None] | None
+) -> tuple[PreviousRun, Start]:
+    """The result to go on from and where the new run starts in its map; InputError when it cannot be found."""
+    if cfg.method != "gslam":
+        raise InputError(f"--continue maps on with G-SLAM's point map; --method {cfg.method} cannot continue one")
+    previous = load_previous(continuation.previous)
+    if continuation.initial_pose is None and notice is not None:
+        notice(f"finding the run in {continuation.previous}'s map (its first scans searched for over the whole map)")
+    pose = None if continuation.initial_pose is None else np.asarray(continuation.initial_pose, dtype=float)
+    start = find_start(previous, log, pose)
+    if start.pose is None:
+        lost = (
+            f"{log.path}: could not find itself in the map of {continuation.previous} over its first "
+            f"{start.scans_searched} scans ({start.travel_m:.1f} m of travel)"
+        )
+        if continuation.if_lost != "new":
+            raise InputError(
+                f"{lost}; give --initial-pose X Y YAW (where its first scan stands in that map), or --if-lost new "
+                "to map it as a new trajectory beside the earlier map"
+            )
+        if notice is not None:
+            notice(f"{lost}: mapping it as a new trajectory in its own frame; the earlier map is kept beside it")
+    return previous, start
 
 
 def _run_metadata(input_path: Path, log: InputLog, runner: SlamRunner, cfg: RunConfig, command: str | None) -> dict:
@@ -355,28 +418,67 @@ def _place_every_scan(run: _OpenRun, times: _StepTimes, notice: Callable[[str], 
 
 def _close_loops(
     run: _OpenRun, times: _StepTimes, notice: Callable[[str], None] | None
-) -> tuple[dict | None, dict | None]:
-    """The pose graph under the final trajectory (`GSlamFilter.close_loops`, `loop_closure` on): (its record
-    for the result, the graph for the outputs in their frame); (None, None) when off, for other methods,
-    and for a run cut short."""
+) -> tuple[dict | None, dict | None, PoseGraphBackEnd | None]:
+    """The pose graph under the final trajectory (`GSlamFilter.close_loops`, `loop_closure` on), with the
+    graph of the run it continues: (its record for the result, the graph for the outputs in their frame, the
+    back end); (None, None, None) when off, for other methods, and for a run cut short."""
     flt = run.runner.filter
     if times.interrupted or not times.scan_indices or not getattr(run.cfg.filter, "loop_closure", False):
-        return None, None
+        return None, None, None
     if not hasattr(flt, "close_loops"):
-        return None, None
+        return None, None, None
     if notice is not None:
         notice("closing loops: a pose graph under the trajectory, each node's scan searched in earlier submaps")
     t0 = time.perf_counter()
     indices = times.scan_indices
-    backend = flt.close_loops(lambda steps: run.runner.scans_at([indices[k] for k in steps]))
+    mount = run.runner.mount
+    previous = None if run.previous is None or not run.connected else run.previous.graph(_laser_of(mount))
+    apart = run.previous is not None and not run.connected  # a new trajectory: numbered after the earlier runs
+    first = len(run.previous.sessions) if apart else 0
+    backend = flt.close_loops(lambda steps: run.runner.scans_at([indices[k] for k in steps]), None, previous, first)
     record = backend.summary()
     record["seconds"] = round(time.perf_counter() - t0, 3)
     graph = backend.graph()
-    mount = run.runner.mount
     if mount is not None and graph["x_m"]:  # the outputs are the base's poses
         base = mount.base_of(np.column_stack([graph["x_m"], graph["y_m"], graph["yaw_rad"]]))
         graph["x_m"], graph["y_m"], graph["yaw_rad"] = base[:, 0].tolist(), base[:, 1].tolist(), base[:, 2].tolist()
-    return record, graph
+    return record, graph, backend
+
+
+def _laser_of(mount) -> Callable[[np.ndarray], np.ndarray]:
+    return (lambda poses: np.asarray(poses, dtype=float)) if mount is None else mount.laser_of
+
+
+def _graph_scans(backend: PoseGraphBackEnd) -> tuple[np.ndarray, np.ndarray]:
+    """Each node's returns in the map frame, at its final pose, and the node each belongs to."""
+    parts = [transform_points(backend.estimate[k], pts) for k, pts in enumerate(backend.points)]
+    node = np.repeat(np.arange(len(parts)), [len(p) for p in parts])
+    return (np.concatenate(parts) if parts else np.empty((0, 2))), node
+
+
+def _sessions(run: _OpenRun, backend: PoseGraphBackEnd | None) -> tuple[list[dict] | None, list | None]:
+    """The earlier runs' final trajectories for the result (`/slam/sessions`), moved with the graph where it
+    corrects them, and the earlier maps apart from this run's (`/slam/earlier_maps`): the previous result's,
+    and its own map too when this run could not find itself in it."""
+    prev = run.previous
+    if prev is None:
+        return None, None
+    mount = run.runner.mount
+    shift = 0 if run.connected else 1  # the previous map becomes the first of the earlier ones
+    out = []
+    for s in prev.sessions:
+        poses = s.poses
+        if run.connected and s.connected and backend is not None and backend.applied and len(poses):
+            laser = _laser_of(mount)(poses)
+            moved = backend.correct_trajectory(laser, session=s.index)
+            poses = moved if mount is None else mount.base_of(moved)
+        at = s.map + shift if (s.map or not run.connected) else 0
+        out.append({
+            "session": s.index, "input": s.input, "map": at, "connected": at == 0, "t_s": s.t_s.tolist(),
+            "x_m": poses[:, 0].tolist(), "y_m": poses[:, 1].tolist(), "yaw_rad": poses[:, 2].tolist(),
+        })  # fmt: skip
+    earlier = list(prev.earlier_maps) if run.connected else [(prev.map_xy, prev.map_p), *prev.earlier_maps]
+    return out, earlier
 
 
 def _finish(run: _OpenRun, times: _StepTimes, notice: Callable[[str], None] | None) -> ProcessSummary:
@@ -390,7 +492,7 @@ def _finish(run: _OpenRun, times: _StepTimes, notice: Callable[[str], None] | No
         with interrupts.deferred():
             live = run.runner.stop_live()  # the live back end's record (`loop_closure_live`), or None
             placement = _place_every_scan(run, times, notice)
-            closure, graph = _close_loops(run, times, notice)
+            closure, graph, backend = _close_loops(run, times, notice)
             if closure is not None:
                 closure["live"] = live
             summary = _summary(run, times)
@@ -402,7 +504,9 @@ def _finish(run: _OpenRun, times: _StepTimes, notice: Callable[[str], None] | No
                 if notice is not None:
                     notice("building the occupancy grid (every scan ray-cast at the final poses)")
                 occupancy = _occupancy(run.runner, run.log, times.scan_indices, run.cfg)
-            end = RunEnd(run.runner.output_filter, result_meta, occupancy, graph)
+            scans = None if backend is None else _graph_scans(backend)
+            sessions, earlier_maps = _sessions(run, backend)
+            end = RunEnd(run.runner.output_filter, result_meta, occupancy, graph, scans, sessions, earlier_maps)
             for w in reversed(run.writers):
                 try:
                     w.finish(end)

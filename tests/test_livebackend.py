@@ -125,6 +125,7 @@ def test_a_failing_worker_leaves_the_run_uncorrected_and_says_why(long_ring, mon
     background = LiveBackEnd()
     monkeypatch.setattr(background.graph, "add_node", broken)
     feed(background, truth[:50], truth, scans)  # never raises in the run's thread
+    background._thread.join(30)  # the worker ends at its first failure (`stop` would drop what it has not taken)
     record = background.stop()
     assert "solver gone" in record["error"] and background.correction is None
 

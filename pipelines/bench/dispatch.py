@@ -16,7 +16,7 @@ from pathlib import Path
 from pipelines.errors import OptionError
 from pipelines.methods import NAMES as METHOD_NAMES
 
-SUITES = ("carpark", "freiburg", "speed", "robustness", "localise")
+SUITES = ("carpark", "freiburg", "speed", "robustness", "localise", "continue")
 
 
 @dataclass(frozen=True)
@@ -79,6 +79,7 @@ def run_benchmark(request: BenchRequest, echo: Callable[[str], None]) -> str:
     run = {
         "robustness": _robustness,
         "localise": _localise,
+        "continue": _continue,
         "freiburg": _freiburg,
         "speed": _speed,
         "carpark": _carpark,
@@ -148,6 +149,21 @@ def _localise(request: BenchRequest, echo: Callable[[str], None]) -> str:
         inputs = [(c.name, ingest_to(c.log, Path(tmp))) for c in corpus]
         runs = run_localise_bench(inputs, echo)
     return localise_section(runs, request.command, *_machine())
+
+
+def _continue(request: BenchRequest, echo: Callable[[str], None]) -> str:
+    from pipelines.bench.continuation import continue_section, run_continue_bench
+    from pipelines.bench.corpus import build_corpus
+    from pipelines.bench.suites import ingest_to
+
+    only = corpus_logs(request.logs, request.datasets)
+    with tempfile.TemporaryDirectory(prefix="gslam-bench-continue-in-") as tmp:
+        corpus = [c for c in build_corpus(request.datasets, Path(tmp), 0) if only is None or c.name in only]
+        if not corpus:
+            raise OptionError(f"--datasets {request.datasets}: no corpus log found")
+        inputs = [(c.name, ingest_to(c.log, Path(tmp))) for c in corpus]
+        runs = run_continue_bench(inputs, list(range(request.seeds or 1)), echo)
+    return continue_section(runs, request.command, *_machine())
 
 
 def _freiburg_logs(request: BenchRequest) -> list[Path]:

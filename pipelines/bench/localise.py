@@ -94,8 +94,8 @@ def run_localise_bench(inputs: list[tuple[str, Path]], progress: Callable[[str],
     from gslam.motion import odometry_delta
     from pipelines.evaluation.evaluate import read_result
     from pipelines.localise.maps import load_map
-    from pipelines.localise.run import scan_stream
     from pipelines.run.input_log import InputLog
+    from pipelines.run.scans import scan_stream
 
     runs: list[LocaliseRun] = []
     with tempfile.TemporaryDirectory(prefix="gslam-bench-localise-") as tmp:

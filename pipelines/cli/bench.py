@@ -39,7 +39,8 @@ def bench(
             help="carpark: the paper's Tables 3 and 4; freiburg: relations error on the Freiburg indoor logs "
             "(N 30, seeds 0..SEEDS-1); speed: whole-run wall time, ms per update and peak memory (median of 3); "
             "robustness: the corpus (Freiburg, Radish with corrupted odometry) beside GMapping and odometry; "
-            "localise: `gslam localise` in maps `gslam process` built (global, wrong start, half map, kidnap).",
+            "localise: `gslam localise` in maps `gslam process` built (global, wrong start, half map, kidnap); "
+            "continue: each corpus log's second half continued from its first half's result (--continue).",
         ),
     ] = "carpark",
     freiburg: Annotated[
@@ -63,12 +64,16 @@ def bench(
         ),
     ] = Path("../shared/tools/lama"),
     datasets: Annotated[
-        Path, typer.Option("--datasets", help="The datasets directory (robustness and localise suites: the corpus).")
+        Path,
+        typer.Option(
+            "--datasets", help="The datasets directory (robustness, localise and continue suites: the corpus)."
+        ),
     ] = Path("../shared/datasets"),
     logs: Annotated[
         str | None,
         typer.Option(
-            "--logs", help="Robustness and localise suites: comma-separated corpus logs to run (default: all)."
+            "--logs",
+            help="Robustness, localise and continue suites: comma-separated corpus logs to run (default: all).",
         ),
     ] = None,
 ) -> None:

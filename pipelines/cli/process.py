@@ -122,6 +122,33 @@ def process(
             "--live-url", help="The viewer's gRPC address for --live.", show_default="rerun+http://127.0.0.1:9876/proxy"
         ),
     ] = None,
+    continue_from: Annotated[
+        Path | None,
+        typer.Option(
+            "--continue",
+            metavar="PREVIOUS",
+            help="Go on from this earlier `gslam process` result: find the run in its map, then map on in one "
+            "map and one pose graph (the earlier runs' trajectories kept in the result).",
+        ),
+    ] = None,
+    initial_pose: Annotated[
+        tuple[float, float, float] | None,
+        typer.Option(
+            "--initial-pose",
+            metavar="X Y YAW",
+            help="With --continue: where the first scan stands in PREVIOUS's map (m, m, rad; the base's pose). "
+            "Default: found by the localiser's global start.",
+        ),
+    ] = None,
+    if_lost: Annotated[
+        str,
+        typer.Option(
+            "--if-lost",
+            metavar="stop|new",
+            help="With --continue, when the run cannot find itself in PREVIOUS's map: stop (an error, nothing "
+            "written), or new: map it as a new trajectory in its own frame, PREVIOUS's map and runs kept beside it.",
+        ),
+    ] = "stop",
     keep_viewer: Annotated[
         bool,
         typer.Option(
@@ -139,6 +166,12 @@ def process(
         fail(f"--rrd {rrd} and --no-rrd contradict each other: give one")
     if live_url is not None and not live_url.strip():
         fail("--live-url is empty: give the Rerun viewer's address, e.g. rerun+http://127.0.0.1:9876/proxy")
+    if initial_pose is not None and continue_from is None:
+        fail("--initial-pose goes with --continue (a new map starts at the first scan's odometry pose)")
+    if if_lost not in ("stop", "new"):
+        fail(f"--if-lost {if_lost}: expected stop or new")
+    if if_lost != "stop" and continue_from is None:
+        fail("--if-lost goes with --continue")
     rrd_path = None if no_rrd else (rrd or output.with_suffix(".rrd"))
     # Started first, before numpy and numba are imported: see writer_child.start_rerun_writer.
     rrd_writer = None if rrd_path is None else start_rerun_writer(rrd_path)
@@ -173,7 +206,14 @@ def process(
         outputs = {"OUTPUT": output, "--rrd": rrd_path}
         if log_format is not None:
             outputs["the ingested input"] = ingested_path(output)
-        check_outputs(outputs, {"INPUT": input, "--config": config})
+        check_outputs(outputs, {"INPUT": input, "--config": config, "--continue": continue_from})
+        continuation = None
+        if continue_from is not None:
+            from pipelines.localise.run import check_options
+            from pipelines.process import Continuation
+
+            check_options(initial_pose, None)
+            continuation = Continuation(continue_from, initial_pose, if_lost)
         if keep_viewer and cfg.live_url is None:
             fail("--keep-viewer goes with --live (or --live-url)")
         if cfg.live_url is not None:
@@ -191,8 +231,9 @@ def process(
             input = direct.mcap
         with reporting("G-SLAM", "scans") as (report, say):
             summary = run_process(
-                input, output, rrd_path, cfg, report, command=invocation(ctx), rrd_writer=rrd_writer, notice=say
-            )
+                input, output, rrd_path, cfg, report, command=invocation(ctx), rrd_writer=rrd_writer, notice=say,
+                continuation=continuation,
+            )  # fmt: skip
         typer.echo(summary.describe())
         typer.echo(f"wrote {summary.output}")
         if summary.rrd is not None:

@@ -24,6 +24,7 @@ from pipelines.evaluation.metrics import (
     relations_frame_offset,
 )
 from pipelines.run.input_log import converted
+from pipelines.run.recorded_input import process_result_metadata
 from pipelines.run.recorded_input import recorded_input as checked_input
 
 METRIC_KEYS = (
@@ -63,14 +64,7 @@ def read_result(path: Path, progress: Callable[[int, int], None] | None = None) 
     """The steps, final trajectory and final map of a `gslam process` result; `progress(done, total)` counts
     the steps read (long logs take seconds)."""
     src = McapInput(path)
-    try:
-        meta = src.metadata()
-    except Exception as e:
-        raise InputError(f"{path}: not a readable MCAP file ({read_error(e)})") from None
-    if "localise" in meta:
-        raise InputError(f"{path}: a result of `gslam localise`; this needs a result of `gslam process`")
-    if "result" not in meta or "config" not in meta:
-        raise InputError(f"{path}: no 'result'/'config' metadata; is this a result of `gslam process`?")
+    meta = process_result_metadata(src, path)
     total = (message_count(src, ch.SLAM_POSE) or 0) if progress is not None else 0
     t, stamp, online, step_ms = [], [], [], []
     trajectory = None

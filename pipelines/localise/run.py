@@ -18,7 +18,7 @@ import dataclasses
 import math
 import os
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NoReturn
@@ -28,7 +28,6 @@ import numpy as np
 from gslam import __version__
 from gslam.localise import LocaliseConfig, LocaliseStep, MonteCarloLocaliser
 from gslam.motion import odometry_delta
-from gslam.scan import Scan
 from gslam.se2 import compose_inverse
 from mcaplog import channels as ch
 from mcaplog.mcapio import AtomicMcapWriter, to_ns
@@ -38,9 +37,9 @@ from pipelines.errors import InputError, OptionError
 from pipelines.evaluation.localisation import MAP_TOPIC, PARTICLES_TOPIC, POSE_TOPIC, STATE_TOPIC
 from pipelines.localise.maps import MAX_COORDINATE_M, SavedMap, load_map
 from pipelines.run import interrupts
-from pipelines.run.input_log import InputLog, OdomEvent, ScanEvent
-from pipelines.run.odometry_check import ReversalCheck
+from pipelines.run.input_log import InputLog
 from pipelines.run.recorded_input import fingerprint
+from pipelines.run.scans import scan_stream
 
 POSE, STATE, PARTICLES, MAP = POSE_TOPIC, STATE_TOPIC, PARTICLES_TOPIC, MAP_TOPIC
 MAX_PARTICLES_WRITTEN = 1000
@@ -276,23 +275,6 @@ class _RerunOut:
         finally:
             if self.tmp is not None:
                 Path(self.tmp).unlink(missing_ok=True)
-
-
-def scan_stream(log: InputLog) -> Iterator[tuple[int, float, np.ndarray, np.ndarray, float]]:
-    """(scan index, log time, the odometry pose then (the base's, fr079's reversal check applied), the
-    scan's end points in the laser frame (K, 2), the scan's own stamp) for every scan of an odometry log."""
-    reversal = ReversalCheck()
-    odom = None
-    for ev in log.events():
-        if isinstance(ev, OdomEvent):
-            odom = reversal.update(ev.pose, ev.tv_mps)
-        elif isinstance(ev, ScanEvent):
-            if odom is None:
-                raise InputError(f"{log.path}: scan {ev.index} has no odometry before it")
-            scan = Scan(ev.stamp_s, ev.ranges_m, ev.geometry or log.geometry, log.self_return_range_m)
-            _, r, b = scan.return_polar()
-            ends = np.column_stack([r * np.cos(b), r * np.sin(b)])
-            yield ev.index, ev.t_s, np.asarray(odom, dtype=float), ends, ev.stamp_s
 
 
 def check_options(initial_pose: tuple[float, float, float] | None, initial_sigma: tuple[float, float] | None) -> None:

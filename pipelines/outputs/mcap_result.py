@@ -124,6 +124,18 @@ class McapResultWriter:
             self.writer.write_proto(ch.SLAM_GRID, ch.occupancy_grid(t_last, prob, origin, cell), ns)
         if end.graph is not None:
             self.writer.write_json(ch.SLAM_GRAPH, "gslam.PoseGraph", ch.SLAM_GRAPH_SCHEMA, end.graph, ns)
+        if end.graph_scans is not None:
+            scans_xy, node = end.graph_scans
+            self.writer.write_proto(ch.SLAM_GRAPH_SCANS, ch.node_returns_cloud(t_last, scans_xy, node), ns)
+        for earlier_xy, earlier_p in end.earlier_maps or []:
+            self.writer.write_proto(ch.SLAM_EARLIER_MAPS, ch.point_cloud(t_last, earlier_xy, earlier_p), ns)
+        for k, run in enumerate(end.sessions or []):  # each earlier run's path, for the viewers
+            poses = np.column_stack([run["x_m"], run["y_m"], run["yaw_rad"]]).reshape(-1, 3)
+            path = ch.poses_in_frame_bytes(t_last, poses, ch.MAP_FRAME if run["map"] == 0 else f"map_{run['map']}")
+            self.writer.write_proto_bytes(ch.session_trajectory(k), ch.PosesInFrame, path, ns)
+        if end.sessions:
+            sessions = {"sessions": end.sessions}
+            self.writer.write_json(ch.SLAM_SESSIONS, "gslam.Sessions", ch.SLAM_SESSIONS_SCHEMA, sessions, ns)
         self.writer.add_metadata("result", end.result)
         return self.writer.finish()
 

@@ -32,6 +32,25 @@ OCCUPANCY = "world/occupancy"
 dark free, unknown transparent), placed by its origin and cell size."""
 TRAJECTORY = "world/trajectory"
 """The best particle's final trajectory."""
+SESSIONS = "world/sessions"
+"""The final trajectories of the earlier mapping runs a continued run goes on from (`session_trajectory`)."""
+
+
+def session_trajectory(k: int) -> str:
+    """The entity of earlier run k's final trajectory (0: the first)."""
+    return f"{SESSIONS}/{k}/trajectory"
+
+
+def session_robot(k: int) -> str:
+    """Earlier run k's robot (an arrow) along its final trajectory, on its own timelines (`session_timeline`)."""
+    return f"{SESSIONS}/{k}/robot"
+
+
+def session_timeline(k: int, kind: str) -> str:
+    """Earlier run k's timeline: "scan" (sequence) or "time" (seconds since its first scan)."""
+    return f"session {k} {kind}"
+
+
 GRAPH_NODES = "world/graph/nodes"
 """The back end's pose graph (final): its nodes at their optimised poses."""
 GRAPH_SEQUENTIAL = "world/graph/sequential"

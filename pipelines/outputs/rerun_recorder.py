@@ -62,6 +62,8 @@ FINAL_PATH_RADIUS_UI = 1.0
 (0.08 m) at the Car Park's usual zoom, so that a corridor's free space stays visible beside it."""
 ONLINE_PATH_RADIUS_UI = 0.75
 """The online estimate's radius in screen points, under the final path where they agree."""
+SESSION_COLOURS = ([255, 170, 60], [200, 90, 255], [60, 220, 220], [255, 110, 160])
+"""The earlier mapping runs' final paths (`world/sessions/K`): orange, violet, cyan, pink, then again."""
 
 
 def blueprint() -> rrb.Blueprint:
@@ -244,6 +246,22 @@ class Recorder:
                     [final["online"]], colors=[[60, 120, 255]], radii=ui(ONLINE_PATH_RADIUS_UI), draw_order=39.0
                 ),
             )
+            for k, (t_s, poses) in enumerate(final.get("sessions") or []):  # the runs this one continues
+                colour = SESSION_COLOURS[k % len(SESSION_COLOURS)]
+                rec.log(
+                    entity.session_trajectory(k),
+                    rr.LineStrips2D([poses[:, :2]], colors=[colour], radii=ui(1.0), draw_order=38.0),
+                )
+                # its robot on a timeline of its own: that run replayed along its final path
+                idx = [
+                    rr.TimeColumn(entity.session_timeline(k, "scan"), sequence=np.arange(len(t_s))),
+                    rr.TimeColumn(entity.session_timeline(k, "time"), duration=t_s - t_s[0]),
+                ]
+                heading = np.column_stack([np.cos(poses[:, 2]), np.sin(poses[:, 2])])
+                rec.send_columns(
+                    entity.session_robot(k), indexes=idx,
+                    columns=rr.Arrows2D.columns(origins=poses[:, :2], vectors=heading, colors=[colour] * len(t_s)),
+                )  # fmt: skip
             graph = final.get("graph")
             if graph is not None:
                 rec.log(entity.GRAPH_NODES, rr.Points2D(graph["nodes"], colors=[[200, 200, 200]], radii=ui(2.0)))

@@ -165,6 +165,11 @@ class RerunResultWriter:
                 "trajectory": np.asarray(traj[:, :2]),
                 "online": np.asarray(self.online),
                 "graph": None if end.graph is None else graph_segments(end.graph),
+                "sessions": [
+                    (np.asarray(s["t_s"], dtype=float), np.column_stack([s["x_m"], s["y_m"], s["yaw_rad"]]))
+                    for s in (end.sessions or [])
+                    if s["x_m"]
+                ],
             }
             if hasattr(flt, "occupancy"):
                 prob, _, _ = flt.occupancy(best)

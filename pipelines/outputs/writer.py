@@ -51,6 +51,12 @@ class RunEnd:
     occupancy: OccupancyMap | None = None
     graph: dict[str, Any] | None = None
     """The back end's pose graph (`PoseGraphBackEnd.graph`, in the outputs' frame), when loop closure ran."""
+    graph_scans: tuple[Any, Any] | None = None
+    """Each graph node's returns in the map frame: (xy (K, 2), node index (K,)), what `--continue` reads."""
+    sessions: list[dict[str, Any]] | None = None
+    """The earlier mapping runs a continued run goes on from (`SLAM_SESSIONS_SCHEMA`'s items)."""
+    earlier_maps: list[tuple[Any, Any]] | None = None
+    """The maps of earlier runs apart from this run's map: (points (K, 2), probabilities (K,)) each."""
 
 
 class ResultWriter(Protocol):

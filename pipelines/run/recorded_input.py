@@ -19,6 +19,22 @@ TAIL_BYTES = 1 << 16
 offsets, sizes and times, and the summary's CRC) change with any change to its messages."""
 
 
+def process_result_metadata(src: Any, path: Path, needs: str = "this needs") -> dict[str, Any]:
+    """The metadata of the MCAP `src` (an `McapInput` of `path`) when it is a `gslam process` result; else
+    InputError naming the file, `needs` saying what wanted one ("--continue takes")."""
+    from mcaplog.mcapio import read_error
+
+    try:
+        meta = src.metadata()
+    except Exception as e:
+        raise InputError(f"{path}: not a readable MCAP file ({read_error(e)})") from None
+    if "localise" in meta:
+        raise InputError(f"{path}: a result of `gslam localise`; {needs} a result of `gslam process`")
+    if "result" not in meta or "config" not in meta:
+        raise InputError(f"{path}: no 'result'/'config' metadata; {needs} a result of `gslam process`")
+    return meta
+
+
 def fingerprint(path: Path) -> dict[str, Any]:
     """{"size": bytes, "tail_sha256": hex digest of the last `TAIL_BYTES`} of a regular file."""
     with open(path, "rb") as f:

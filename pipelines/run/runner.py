@@ -120,9 +120,12 @@ class Step:
 class SlamRunner:
     """Streams an `InputLog` through a `GSlamFilter`, one scan at a time."""
 
-    def __init__(self, log: InputLog, cfg: RunConfig) -> None:
+    def __init__(self, log: InputLog, cfg: RunConfig, start: np.ndarray | None = None) -> None:
+        """`start`: the base's pose at the first scan, in the map of the run this one continues (`gslam process
+        --continue`); None: the run's own frame (odometry logs: the first scan's odometry pose)."""
         self.log = log
         self.cfg = cfg
+        self.start = None if start is None else np.asarray(start, dtype=float)
         self.vehicle: AckermannVehicle | None = None
         if log.motion_model == "ackermann":
             self.vehicle = vehicle_preset(cfg.vehicle or log.meta["vehicle"].get("preset", "carpark"))
@@ -134,6 +137,8 @@ class SlamRunner:
         self.initialised_from_gps = False
         """Whether the initial pose was fitted to GPS (the map is then in the GPS and survey frame)."""
         self.initial_pose, self.t_init_s = self._initial_pose()
+        if self.start is not None and self.vehicle is not None:
+            self.initial_pose = self.start
         self.min_range_m = cfg.filter.min_range_m if cfg.filter.min_range_m is not None else log.self_return_range_m
         self.filter = make_filter(
             cfg, np.zeros(3) if self.initial_pose is None else self.initial_pose, log.self_return_range_m
@@ -260,7 +265,8 @@ class SlamRunner:
                         raise InputError(f"{self.log.path}: scan {ev.index} has no odometry before it")
                     mount = self.mount
                     if odom_prev is None:
-                        self.filter.poses[:] = odom_last if mount is None else mount.laser_of(odom_last)
+                        first = odom_last if self.start is None else self.start
+                        self.filter.poses[:] = first if mount is None else mount.laser_of(first)
                     else:
                         delta = odometry_delta(odom_prev, odom_last)
                         if mount is None:

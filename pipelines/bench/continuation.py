@@ -1,0 +1,227 @@
+"""`gslam bench --suite continue`: a map that goes on across mapping runs, on the robustness suite's corpus.
+
+Each log is cut in two at its middle scan (`cut_input`: two input MCAPs, the second with the odometry of the
+second before its first scan). Per seed: the whole log mapped at once; the first half mapped; the second
+half mapped from nothing ("alone") and continued from the first half's result (`gslam process B OUT
+--continue A`, the start found by the run itself). The second half's relations error (the relations with
+both stamps in it) is compared with the whole run's on the same relations: continuing should be as good
+as mapping the log at once, and better than mapping the half alone.
+
+Also recorded: where the continued run found itself (the scan and the travel), the closures between the
+runs, the merged map's size against the whole run's (places seen again updated, not doubled), the bytes a
+result holds for a run to continue it (the final map, the graph and its scans) and how long loading them
+takes (`pipelines.run.continuation.load_previous`, median of 3).
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mcaplog import channels as ch
+
+CONTINUE_CHANNELS = (ch.SLAM_MAP_FINAL, ch.SLAM_GRAPH, ch.SLAM_GRAPH_SCANS, ch.SLAM_SESSIONS)
+"""What a result holds for a run that continues it (besides its trajectory, which it holds anyway)."""
+
+
+def cut_input(src: Path, at_scan: int, first: Path, second: Path) -> float:
+    """Cut the input MCAP `src` at scan `at_scan` into `first` (the scans before it) and `second` (that scan
+    and the rest, with every other message of the second before it: the odometry its first scan needs);
+    messages written once (relations, landmarks) go to both, with the metadata. Returns the cut's log time
+    (s)."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with open(src, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        counts = summary.statistics.channel_message_counts
+        scan_ids = {c.id for c in summary.channels.values() if c.topic == ch.LASER}
+        times = [m.log_time for _, _, m in reader.iter_messages(topics=[ch.LASER])]
+        if not 0 < at_scan < len(times):
+            raise ValueError(f"{src}: cannot cut its {len(times)} scans at scan {at_scan}")
+        cut = times[at_scan]
+        header = reader.get_header()
+        outs = []
+        for path in (first, second):
+            fo = open(path, "wb")
+            w = Writer(fo)
+            w.start(profile=header.profile, library=header.library)
+            schemas = {s.id: w.register_schema(s.name, s.encoding, s.data) for s in summary.schemas.values()}
+            channels = {
+                c.id: w.register_channel(c.topic, c.message_encoding, schemas.get(c.schema_id, 0), c.metadata)
+                for c in summary.channels.values()
+            }
+            for m in reader.iter_metadata():
+                w.add_metadata(m.name, m.metadata)
+            outs.append((fo, w, channels))
+        for _, c, m in reader.iter_messages(log_time_order=True):
+            once = counts.get(c.id, 0) == 1
+            lead = c.id not in scan_ids and m.log_time >= cut - 1_000_000_000
+            for k, wanted in enumerate((once or m.log_time < cut, once or m.log_time >= cut or lead)):
+                if wanted:
+                    _, w, channels = outs[k]
+                    w.add_message(channels[c.id], m.log_time, m.data, m.publish_time)
+        for fo, w, _ in outs:
+            w.finish()
+            fo.close()
+    return cut / 1e9
+
+
+@dataclass
+class ContinueRun:
+    log: str
+    seed: int
+    scans: int
+    whole: tuple[float, float]
+    """The whole log mapped at once, scored on the second half's relations (m, deg)."""
+    alone: tuple[float, float]
+    """The second half mapped from nothing."""
+    continued: tuple[float, float]
+    """The second half continued from the first half's result."""
+    relations: int
+    start: dict
+    between_runs: int
+    """Closures kept between the two runs."""
+    map_points: tuple[int, int]
+    """(whole run, continued run): final map points."""
+    saved_bytes: int
+    """The first half's result's channels a continuation reads (`CONTINUE_CHANNELS`) ..."""
+    result_bytes: int
+    """... and the whole result file."""
+    load_s: float
+    wall_s: float
+    """The continued run's, whole command."""
+
+
+def _relations(input_mcap: Path) -> np.ndarray:
+    from mcaplog.mcapio import McapInput
+    from pipelines.evaluation.evaluate import reference_truth
+
+    _, _, rel = reference_truth(McapInput(input_mcap))
+    return np.empty((0, 5)) if rel is None else rel
+
+
+def _scored(result: Path, relations: np.ndarray) -> tuple[float, float, int]:
+    from pipelines.evaluation.evaluate import read_result
+    from pipelines.evaluation.metrics import relations_error
+
+    data = read_result(result)
+    err = relations_error(data.stamp_s, data.trajectory, relations)
+    return err["relations_trans_m"], err["relations_rot_deg"], err["relations_used"]
+
+
+def _channel_bytes(path: Path, topics: tuple[str, ...]) -> int:
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        return sum(len(m.data) for _, _, m in reader.iter_messages(topics=list(topics)))
+
+
+def _process(args: list[str]) -> float:
+    import subprocess
+    import sys
+
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "pipelines.cli", "process", *args], capture_output=True, text=True)
+    if proc.returncode != 0:
+        last = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
+        raise RuntimeError(f"gslam process {' '.join(args)} failed: {last}")
+    return time.perf_counter() - t0
+
+
+def run_continue_bench(
+    inputs: list[tuple[str, Path]], seeds: list[int], progress: Callable[[str], None]
+) -> list[ContinueRun]:
+    """Every log of `inputs` (name, input MCAP) cut in two and mapped whole, in halves and continued."""
+    from mcaplog.mcapio import McapInput
+    from pipelines.evaluation.evaluate import read_result
+    from pipelines.evaluation.mcap_info import message_count
+    from pipelines.run.continuation import load_previous
+
+    runs = []
+    with tempfile.TemporaryDirectory(prefix="gslam-bench-continue-") as tmp:
+        work = Path(tmp)
+        for name, mcap in inputs:
+            relations = _relations(mcap)
+            scans = message_count(McapInput(mcap), ch.LASER) or 0
+            first, second = work / f"{name}-a.mcap", work / f"{name}-b.mcap"
+            cut_input(mcap, scans // 2, first, second)
+            for seed in seeds:
+                common = ["--seed", str(seed), "--no-rrd"]
+                whole, a, alone, cont = (work / f"{name}-{seed}-{k}.mcap" for k in ("whole", "a", "alone", "cont"))
+                _process([str(mcap), str(whole), *common])
+                _process([str(first), str(a), *common])
+                _process([str(second), str(alone), *common])
+                wall = _process([str(second), str(cont), "--continue", str(a), *common])
+                loads = []
+                for _ in range(3):
+                    t0 = time.perf_counter()
+                    load_previous(a)
+                    loads.append(time.perf_counter() - t0)
+                # the relations between the second half's scans (by the sensor stamps they name)
+                since = float(read_result(alone).stamp_s[0]) - 1e-3
+                later = relations[(relations[:, 0] >= since) & (relations[:, 1] >= since)]
+                w = _scored(whole, later)
+                al = _scored(alone, later)
+                co = _scored(cont, later)
+                meta = read_result(cont).metadata
+                closure = meta["result"].get("loop_closure") or {}
+                run = ContinueRun(
+                    name, seed, scans, w[:2], al[:2], co[:2], co[2], meta.get("continuation", {}).get("start", {}),
+                    int(closure.get("closures_between_runs", 0)),
+                    (int(read_result(whole).metadata["result"]["final_map_points"]),
+                     int(meta["result"]["final_map_points"])),
+                    _channel_bytes(a, CONTINUE_CHANNELS), a.stat().st_size, statistics.median(loads), wall,
+                )  # fmt: skip
+                runs.append(run)
+                progress(
+                    f"continue {name} seed {seed}: whole {w[0]:.3f} m, alone {al[0]:.3f} m, continued {co[0]:.3f} m "
+                    f"on {co[2]} relations; start {run.start.get('how')} at scan {run.start.get('found_at_scan')}"
+                )
+                for p in (whole, a, alone, cont):
+                    p.unlink(missing_ok=True)
+    return runs
+
+
+def _cell(errors: tuple[float, float]) -> str:
+    t, r = errors
+    return "-" if math.isnan(t) else f"{t:.3f}; {r:.2f}"
+
+
+def continue_section(runs: list[ContinueRun], command: str, machine: str, software: str) -> str:
+    lines = [
+        "## Maps that go on: a log continued from its first half",
+        "",
+        f"- Command: `{command}`",
+        f"- Machine: {machine}",
+        f"- Software: {software}",
+        f"- Date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}",
+        "- Logs: the robustness suite's corpus (Radish odometry corrupted, odometry seed 0), each cut at its",
+        "  middle scan. Whole: the log mapped at once; alone: the second half mapped from nothing; continued:",
+        "  `gslam process SECOND OUT --continue FIRST_RESULT`, the start found by the run (two of its scans",
+        "  found in the first half's submaps). Errors: relations with both stamps in the second half",
+        "  (translation m; rotation deg), each run N 30 with the defaults. Saved: the bytes of the first half's",
+        "  result that a continuation reads (final map, graph, graph scans) / the whole file; load: reading them.",
+        "",
+        "| log | seed | relations | whole | alone | continued | start found at (scan, travel) "
+        "| closures between runs | map points whole / continued | saved (KB) / file (MB) | load (s) | wall (s) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in runs:
+        start = r.start or {}
+        where = f"scan {start.get('found_at_scan')}, {start.get('travel_m', 0):.1f} m" if start else "-"
+        lines.append(
+            f"| {r.log} | {r.seed} | {r.relations} | {_cell(r.whole)} | {_cell(r.alone)} | {_cell(r.continued)} "
+            f"| {where} | {r.between_runs} | {r.map_points[0]} / {r.map_points[1]} "
+            f"| {r.saved_bytes / 1e3:.0f} / {r.result_bytes / 1e6:.1f} | {r.load_s:.2f} | {r.wall_s:.1f} |"
+        )
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,216 @@
+"""`gslam process NEW OUT --continue PREVIOUS`: a simulated robot's drive round an office, cut in three runs;
+the second continues the first's result, the third the second's. Each finds itself in the map before it,
+maps on in one map and one graph, and its result holds every run; `gslam localise` works in the continued
+map; bad input gets one line and writes nothing."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+
+import numpy as np
+import pytest
+from bagtools import bag_from_robot
+from typer.testing import CliRunner
+from worlds import corridor_world, office_world, simulate_robot_loop
+
+from gslam.se2 import compose, inverse
+from mcaplog import channels as ch
+from mcaplog.mcapio import McapInput
+from pipelines.bench.continuation import cut_input
+from pipelines.cli.app import app
+from pipelines.evaluation.evaluate import read_result
+from pipelines.outputs import rerun_entities as entity
+from pipelines.outputs.rerun_viewer import rerun_binary
+
+MOUNT = (0.3, 0.0, math.radians(10.0))
+
+
+def _invoke(*args: str):
+    result = CliRunner().invoke(app, list(args))
+    return result.exit_code, result.output
+
+
+def _final(path, topic):
+    values = [m.value for m in McapInput(path).messages([topic])]
+    return values[-1] if values else None
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """The drive (1.5 laps, laser 0.3 m ahead and turned 10 deg) cut in three; the first mapped, the second
+    continued from it, the third from the second."""
+    tmp = tmp_path_factory.mktemp("continue")
+    sim = simulate_robot_loop(office_world(), np.random.default_rng(5), mount=MOUNT, laps=1.5)
+    bag = bag_from_robot(sim, tmp / "robot.bag", "ros1", "topic")
+    code, out = _invoke("ingest", str(bag), "-o", str(tmp / "in.mcap"))
+    assert code == 0, out
+    n = len(sim.t_s)
+    cut_input(tmp / "in.mcap", n // 3, tmp / "a.mcap", tmp / "bc.mcap")
+    cut_input(tmp / "bc.mcap", n // 3, tmp / "b.mcap", tmp / "c.mcap")
+    outputs = {}
+    for name, args in (
+        ("a", ["process", str(tmp / "a.mcap"), str(tmp / "a-map.mcap"), "--no-rrd"]),
+        ("b", ["process", str(tmp / "b.mcap"), str(tmp / "b-map.mcap"), "--continue", str(tmp / "a-map.mcap")]),
+        ("c", ["process", str(tmp / "c.mcap"), str(tmp / "c-map.mcap"), "--no-rrd", "--continue",
+               str(tmp / "b-map.mcap")]),
+    ):  # fmt: skip
+        outputs[name] = _invoke(*args)
+    return tmp, sim, outputs, (n // 3, 2 * (n // 3))
+
+
+def test_a_continued_run_finds_itself_and_maps_on_in_one_map(runs):
+    """The second run finds where it starts in the first run's map (its frame: the first scan's odometry,
+    here the truth's), maps on there, and its closures tie it to the first run's nodes; its map holds the
+    first run's places and its own."""
+    tmp, sim, outputs, (b0, c0) = runs
+    code, text = outputs["b"]
+    assert code == 0, text
+    assert "finding the run in" in text
+    meta = read_result(tmp / "b-map.mcap").metadata
+    start = meta["continuation"]["start"]
+    assert start["how"] == "found"
+    assert np.hypot(*(np.asarray(start["pose"][:2]) - sim.truth[b0, :2])) < 0.15
+    assert abs(math.remainder(start["pose"][2] - sim.truth[b0, 2], 2 * math.pi)) < math.radians(3)
+    b = read_result(tmp / "b-map.mcap")
+    err = np.hypot(*(b.trajectory[:, :2] - sim.truth[b0:c0, :2]).T)
+    assert np.median(err) < 0.15 and err.max() < 0.4
+    closure = meta["result"]["loop_closure"]
+    assert closure["sessions"] == 2 and closure["closures_between_runs"] >= 3
+    assert len(b.map_p) > len(read_result(tmp / "a-map.mcap").map_p)
+
+
+def test_the_result_holds_every_run_and_a_third_continues_the_second(runs):
+    """The third run's result: its own trajectory, the two earlier ones in /slam/sessions (the first run's
+    as long as its log, each with its input), one graph over all three runs, and a Rerun recording of the
+    second with the first run's path. The third run drives where the first did: the map's places seen again
+    are updated, not added a second time."""
+    tmp, sim, outputs, (b0, c0) = runs
+    code, text = outputs["c"]
+    assert code == 0, text
+    sessions = _final(tmp / "c-map.mcap", ch.SLAM_SESSIONS)["sessions"]
+    assert [s["session"] for s in sessions] == [0, 1]
+    assert [len(s["t_s"]) for s in sessions] == [b0, c0 - b0]
+    assert sessions[0]["input"].endswith("a.mcap") and sessions[1]["input"].endswith("b.mcap")
+    first = np.column_stack([sessions[0]["x_m"], sessions[0]["y_m"]])
+    assert np.allclose(ch.poses_of(_final(tmp / "c-map.mcap", ch.session_trajectory(0)))[:, :2], first)
+    assert np.median(np.hypot(*(first - sim.truth[:b0, :2]).T)) < 0.15
+    graph = _final(tmp / "c-map.mcap", ch.SLAM_GRAPH)
+    assert set(graph["session"]) == {0, 1, 2}
+    assert len(graph["closures"]) == len(graph["closure_scores"])
+    scans = _final(tmp / "c-map.mcap", ch.SLAM_GRAPH_SCANS)
+    xy, node = ch.node_returns_arrays(scans)
+    assert node.max() == len(graph["x_m"]) - 1 and len(xy) > 10 * len(graph["x_m"])
+    c = read_result(tmp / "c-map.mcap")
+    assert len(c.map_p) < 1.1 * len(read_result(tmp / "b-map.mcap").map_p)
+    assert np.median(np.hypot(*(c.trajectory[:, :2] - sim.truth[c0:, :2]).T)) < 0.15
+    printed = subprocess.run(
+        [rerun_binary(), "rrd", "print", "-vvv", str(tmp / "b-map.rrd")], capture_output=True, text=True, timeout=120
+    )
+    assert printed.returncode == 0, printed.stderr[-2000:]
+    for name in (entity.session_trajectory(0), entity.session_robot(0), entity.session_timeline(0, "time")):
+        assert name in printed.stdout, name
+
+
+def test_localise_in_a_continued_map(runs):
+    """`gslam localise` takes a continued result as its map: the third run's scans, localised in it from
+    no initial pose, are tracked."""
+    tmp, _, _, _ = runs
+    code, text = _invoke("localise", str(tmp / "c-map.mcap"), str(tmp / "c.mcap"), str(tmp / "loc.mcap"), "--no-rrd")
+    assert code == 0, text
+    states = [m.value for m in McapInput(tmp / "loc.mcap").messages(["/localise/state"])]
+    assert np.mean([s["tracking"] for s in states]) > 0.7
+
+
+def test_an_initial_pose_starts_the_run_there(runs, tmp_path):
+    """--initial-pose skips the search: the run starts at the pose given (the base's, in the old map)."""
+    tmp, sim, _, (b0, _) = runs
+    truth = sim.truth[b0]
+    out = tmp_path / "given.mcap"
+    code, text = _invoke("process", str(tmp / "b.mcap"), str(out), "--no-rrd", "--max-scans", "30", "--continue",
+                         str(tmp / "a-map.mcap"), "--initial-pose", *(f"{v:.4f}" for v in truth))  # fmt: skip
+    assert code == 0, text
+    start = read_result(out).metadata["continuation"]["start"]
+    assert start["how"] == "initial pose" and np.allclose(start["pose"], truth, atol=1e-4)
+    first = read_result(out).trajectory[0]
+    assert np.hypot(*(first[:2] - truth[:2])) < 0.1
+
+
+@pytest.fixture(scope="module")
+def corridor_map(runs):
+    """A map of another building (a corridor), where the office's scans are found nowhere."""
+    tmp = runs[0]
+    sim = simulate_robot_loop(corridor_world(), np.random.default_rng(1), laps=0.4)
+    bag = bag_from_robot(sim, tmp / "corridor.bag", "ros1", "topic")
+    assert _invoke("ingest", str(bag), "-o", str(tmp / "corridor.mcap"))[0] == 0
+    code, text = _invoke("process", str(tmp / "corridor.mcap"), str(tmp / "corridor-map.mcap"), "--no-rrd")
+    assert code == 0, text
+    return tmp / "corridor-map.mcap"
+
+
+@pytest.fixture
+def short_search(monkeypatch):
+    """A lost run gives up after 5 m of search, not 30 (the tests' run is lost wherever it searches)."""
+    monkeypatch.setattr("pipelines.run.continuation.SEARCH_TRAVEL_M", 5.0)
+
+
+def test_bad_continuations_get_one_line_and_write_nothing(runs, corridor_map, short_search, tmp_path):
+    """--initial-pose or --if-lost alone, a PREVIOUS that is not a mapping result, OUTPUT over PREVIOUS, and
+    a run in another building: each refused in one line naming the file, and no output left behind."""
+    tmp, _, _, _ = runs
+    out = tmp_path / "out.mcap"
+    cases = [
+        (["--initial-pose", "0", "0", "0"], "--initial-pose goes with --continue"),
+        (["--if-lost", "new"], "--if-lost goes with --continue"),
+        (["--continue", str(tmp / "a-map.mcap"), "--if-lost", "maybe"], "--if-lost maybe: expected stop or new"),
+        (["--continue", str(tmp / "a.mcap")], "no 'result'/'config' metadata"),
+        (["--continue", str(tmp_path / "missing.mcap")], "no such result to continue"),
+    ]
+    for extra, said in cases:
+        code, text = _invoke("process", str(tmp / "b.mcap"), str(out), "--no-rrd", *extra)
+        assert code != 0 and said in text, text
+        assert "Traceback" not in text and not out.exists()
+    code, text = _invoke("process", str(tmp / "b.mcap"), str(tmp / "a-map.mcap"), "--continue", str(tmp / "a-map.mcap"))
+    assert code != 0 and "would be overwritten" in text
+    code, text = _invoke("process", str(tmp / "b.mcap"), str(out), "--continue", str(corridor_map))
+    assert code != 0 and "could not find itself in the map of" in text and "--if-lost new" in text, text
+    assert not out.exists() and not out.with_suffix(".rrd").exists()
+
+
+def test_a_run_that_cannot_find_itself_maps_a_new_trajectory_beside_the_old_map(runs, corridor_map, short_search):
+    """--if-lost new: the office's run, lost in the corridor's map, maps the office in its own frame; the
+    corridor's map and run stay in the result apart from it (`/slam/earlier_maps`, map 1), and a run that
+    continues that result finds itself in the office's map and keeps the corridor's too."""
+    tmp, sim, _, (b0, _) = runs
+    apart = tmp / "apart.mcap"
+    code, text = _invoke("process", str(tmp / "b.mcap"), str(apart), "--no-rrd", "--continue", str(corridor_map),
+                         "--if-lost", "new")  # fmt: skip
+    assert code == 0, text
+    assert "mapping it as a new trajectory" in text
+    corridor = read_result(corridor_map)
+    earlier = [ch.cloud_arrays(m.value) for m in McapInput(apart).messages([ch.SLAM_EARLIER_MAPS])]
+    assert len(earlier) == 1 and np.allclose(earlier[0][0], corridor.map_xy, atol=1e-4)
+    sessions = _final(apart, ch.SLAM_SESSIONS)["sessions"]
+    assert [(s["map"], s["connected"]) for s in sessions] == [(1, False)]
+    assert set(_final(apart, ch.SLAM_GRAPH)["session"]) == {1}
+    meta = read_result(apart).metadata["continuation"]
+    assert meta["connected"] is False and meta["start"]["how"] == "lost"
+    # its own frame: the first scan's odometry pose
+    assert np.allclose(read_result(apart).trajectory[0], sim.odometry[b0], atol=0.1)
+    on = tmp / "on.mcap"
+    code, text = _invoke("process", str(tmp / "c.mcap"), str(on), "--no-rrd", "--continue", str(apart))
+    assert code == 0, text
+    sessions = _final(on, ch.SLAM_SESSIONS)["sessions"]
+    assert [(s["session"], s["map"]) for s in sessions] == [(0, 1), (1, 0)]
+    assert len(list(McapInput(on).messages([ch.SLAM_EARLIER_MAPS]))) == 1
+    assert read_result(on).metadata["continuation"]["start"]["how"] == "found"
+
+
+def test_the_start_is_carried_back_to_the_first_scan():
+    """`find_start`'s last step: the pose found at a later scan, moved back by the odometry between them."""
+    found = np.array([2.0, 1.0, 0.5])
+    odom_first, odom_later = np.array([10.0, 0.0, 0.2]), np.array([11.0, 0.5, 0.7])
+    back = compose(inverse(odom_later), odom_first)
+    start = compose(found, back)
+    # the odometry's motion from the start to the later scan, applied to the start, gives the pose found
+    assert np.allclose(compose(start, compose(inverse(odom_first), odom_later)), found)
