@@ -246,7 +246,7 @@ class Recorder:
                     [final["online"]], colors=[[60, 120, 255]], radii=ui(ONLINE_PATH_RADIUS_UI), draw_order=39.0
                 ),
             )
-            for k, (t_s, poses) in enumerate(final.get("sessions") or []):  # the runs this one continues
+            for k, t_s, poses in final.get("sessions") or []:  # the runs this one continues, in its map
                 colour = SESSION_COLOURS[k % len(SESSION_COLOURS)]
                 rec.log(
                     entity.session_trajectory(k),

@@ -166,9 +166,13 @@ class RerunResultWriter:
                 "online": np.asarray(self.online),
                 "graph": None if end.graph is None else graph_segments(end.graph),
                 "sessions": [
-                    (np.asarray(s["t_s"], dtype=float), np.column_stack([s["x_m"], s["y_m"], s["yaw_rad"]]))
+                    (
+                        s["session"],
+                        np.asarray(s["t_s"], dtype=float),
+                        np.column_stack([s["x_m"], s["y_m"], s["yaw_rad"]]),
+                    )
                     for s in (end.sessions or [])
-                    if s["x_m"]
+                    if s["x_m"] and s["map"] == 0  # in this map's frame (an earlier map's runs are not)
                 ],
             }
             if hasattr(flt, "occupancy"):

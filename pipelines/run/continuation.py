@@ -184,7 +184,8 @@ class Start:
     how: str
     """"initial pose" (given), "found" (two of its scans found in the old map), or "lost"."""
     scan: int = 0
-    """The scan whose place confirmed the start (0 for a given pose)."""
+    """The scan found in the old map from which the start was carried back (0 for a given pose); the next
+    candidate confirmed it."""
     travel_m: float = 0.0
     """The odometry's travel up to that scan."""
     scans_searched: int = 0
@@ -207,12 +208,13 @@ CANDIDATE_TRAVEL_M = 0.5
 CANDIDATE_TURN_RAD = 0.5
 """A scan is searched for in the old map every this much travel or turn of the new run (as the graph's
 nodes are taken)."""
-CANDIDATES_AT_ONCE = 6
+CANDIDATES_AT_ONCE = 4
 """Scans searched for together (each region's field is built once for them)."""
-CONFIRM_M = 0.2
-CONFIRM_RAD = 0.05
+CONFIRM_M, CONFIRM_PER_M = 0.2, 0.1
+CONFIRM_RAD, CONFIRM_PER_RAD = 0.05, 0.2
 """Two scans found in the old map confirm each other when the odometry between them takes the first one's
-pose to within this of the second one's (a look-alike place is not found twice, consistently)."""
+pose to within 0.2 m + 0.1 of the distance and 0.05 rad + 0.2 of the turn (three standard deviations of the
+motion model's rotation noise) of the second one's: a look-alike place is not found twice, consistently."""
 
 
 def find_start(
@@ -224,7 +226,8 @@ def find_start(
     """Where the new run's first scan stands in the old map (the base's pose): the `initial_pose` given, or
     where two consecutive scans of its first `SEARCH_TRAVEL_M` of travel (one each `CANDIDATE_TRAVEL_M`) are
     found in the old map, each searched over the whole map and every heading (`PoseGraphBackEnd.locate`),
-    the two agreeing with the odometry between them; carried back to the first scan by the odometry."""
+    the two agreeing with the odometry between them; the first of them carried back to the first scan by the
+    odometry."""
     if initial_pose is not None:
         return Start(np.asarray(initial_pose, dtype=float), "initial pose")
     if log.motion_model != "odometry":
@@ -245,7 +248,7 @@ def find_start(
     backend.add_previous(*graph)
     odom0 = last_odom = None
     candidates: list[tuple[int, float, np.ndarray, np.ndarray]] = []  # (scan, travel, odometry, returns)
-    last_hit: tuple[np.ndarray, np.ndarray] | None = None  # (base pose, odometry) of the last scan found
+    last_hit: tuple | None = None  # (base pose, odometry, scan, travel) of the last candidate found
     travel = turn = 0.0
     searched = 0
 
@@ -260,14 +263,16 @@ def find_start(
                 continue
             base = hit[0] if mount is None else mount.base_of(hit[0][None])[0]
             if last_hit is not None:
-                expected = compose(last_hit[0], compose(inverse(last_hit[1]), odom))
-                if (
-                    math.hypot(expected[0] - base[0], expected[1] - base[1]) <= CONFIRM_M
-                    and abs(wrap_angle_scalar(expected[2] - base[2])) <= CONFIRM_RAD
-                ):
-                    back = compose(inverse(odom), np.asarray(odom0, dtype=float))
-                    return Start(compose(base, back), "found", index, at_m, searched)
-            last_hit = (base, odom)
+                moved = compose(inverse(last_hit[1]), odom)
+                expected = compose(last_hit[0], moved)
+                if math.hypot(expected[0] - base[0], expected[1] - base[1]) <= CONFIRM_M + CONFIRM_PER_M * math.hypot(
+                    moved[0], moved[1]
+                ) and abs(wrap_angle_scalar(expected[2] - base[2])) <= CONFIRM_RAD + CONFIRM_PER_RAD * abs(moved[2]):
+                    # carried back from the first of the two, the nearer the first scan
+                    first, first_odom, first_index, first_m = last_hit
+                    back = compose(inverse(first_odom), np.asarray(odom0, dtype=float))
+                    return Start(compose(first, back), "found", first_index, first_m, searched)
+            last_hit = (base, odom, index, at_m)
         candidates.clear()
         if progress is not None:
             progress(searched, travel)
