@@ -184,14 +184,17 @@ class PoseGraphBackEnd:
         of their poses (online, the best particle may have changed between them: its own history says how
         it moved)."""
         s = self.settings
-        pose = np.asarray(pose, dtype=float)
-        rng = np.hypot(points_xy[:, 0], points_xy[:, 1]) if len(points_xy) else np.empty(0)
-        within = np.asarray(points_xy, dtype=float).reshape(-1, 2)[rng <= s.closure.max_range_m]
-        pts = voxel_filter(within, s.closure.voxel_m)
-        self._append(step, pose, pts, relative)
+        self._append(step, np.asarray(pose, dtype=float), self._kept_returns(points_xy), relative)
         k = len(self.steps) - 1
         if (k - self._session_start) % s.search_every == 0:
             self._search(k)
+
+    def _kept_returns(self, points_xy: np.ndarray) -> np.ndarray:
+        """A scan's returns (K, 2, sensor frame) as the graph keeps and matches them: those within the
+        closures' `max_range_m`, one per `voxel_m` voxel."""
+        c = self.settings.closure
+        pts = np.asarray(points_xy, dtype=float).reshape(-1, 2)
+        return voxel_filter(pts[np.hypot(pts[:, 0], pts[:, 1]) <= c.max_range_m], c.voxel_m)
 
     def _append(self, step: int, pose: np.ndarray, pts: np.ndarray, relative: np.ndarray | None = None) -> None:
         """Node k = len(self) at the front end's `pose`, tied to the node before (at the link's loose sigmas
@@ -358,18 +361,15 @@ class PoseGraphBackEnd:
         region holds a match that scores `min_score`, or a match as good stands elsewhere (`ambiguity_m`,
         `ambiguity_ratio`: a look-alike place, in the same region or another)."""
         s = self.settings
-        clouds = []
-        for points_xy in scans:
-            pts = np.asarray(points_xy, dtype=float).reshape(-1, 2)
-            clouds.append(voxel_filter(pts[np.hypot(pts[:, 0], pts[:, 1]) <= s.closure.max_range_m], s.closure.voxel_m))
+        clouds = [self._kept_returns(points_xy) for points_xy in scans]
         found: list[list[tuple[np.ndarray, float, bool]]] = [[] for _ in scans]
+        settings = replace(
+            s.closure,
+            window_m=0.5 * s.locate_region_m + s.locate_margin_m,
+            window_rad=math.pi,
+            heading_range_m=s.locate_heading_range_m,
+        )
         for centre, region in self._regions():
-            settings = replace(
-                s.closure,
-                window_m=0.5 * s.locate_region_m + s.locate_margin_m,
-                window_rad=math.pi,
-                heading_range_m=s.locate_heading_range_m,
-            )
             guess = np.array([centre[0], centre[1], 0.0])
             for k, pts in enumerate(clouds):
                 if len(pts) < 10:
@@ -518,6 +518,7 @@ class PoseGraphBackEnd:
         """The graph for the outputs (`SLAM_GRAPH_SCHEMA`): optimised node poses, steps, edges, closures."""
         kept = [c for c in self.closures if c.kept]
         rejected = [c for c in self.closures if c.rejected]
+        previous = [e for e in self.edges if e.kind == PREVIOUS]  # an earlier run's closures
         est = np.asarray(self.estimate).reshape(-1, 3)
         return {
             "x_m": est[:, 0].tolist(),
@@ -526,9 +527,8 @@ class PoseGraphBackEnd:
             "step": [int(s) for s in self.steps],
             "session": [int(s) for s in self.session],
             "sequential": [[e.i, e.j] for e in self.edges if e.kind == SEQUENTIAL],
-            "closures": [[c.anchor, c.node] for c in kept] + [[e.i, e.j] for e in self.edges if e.kind == PREVIOUS],
-            "closure_scores": [round(c.score, 4) for c in kept]
-            + [round(e.score, 4) for e in self.edges if e.kind == PREVIOUS],
+            "closures": [[c.anchor, c.node] for c in kept] + [[e.i, e.j] for e in previous],
+            "closure_scores": [round(c.score, 4) for c in kept] + [round(e.score, 4) for e in previous],
             "rejected": [[c.anchor, c.node] for c in rejected],
             "rejected_scores": [round(c.score, 4) for c in rejected],
         }

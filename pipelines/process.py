@@ -24,6 +24,7 @@ from pipelines.run import interrupts
 from pipelines.run.compile_time import COMPILING_NOTE, watching_compiles
 from pipelines.run.continuation import PreviousRun, Start, find_start, load_previous
 from pipelines.run.input_log import InputLog
+from pipelines.run.mount import base_poses, laser_poses
 from pipelines.run.recorded_input import fingerprint
 from pipelines.run.runner import RunConfig, SlamRunner
 from pipelines.run.startup import skip_blas_probe
@@ -97,7 +98,7 @@ def _abort(writers: list[ResultWriter]) -> None:
 @dataclass(frozen=True)
 class Continuation:
     """`gslam process --continue PREVIOUS`: the result to go on from, and where the new run starts in its map
-    (the base's pose; None: found by the localiser)."""
+    (the base's pose; None: found by searching the map, `pipelines.run.continuation.find_start`)."""
 
     previous: Path
     initial_pose: tuple[float, float, float] | None = None
@@ -432,7 +433,7 @@ def _close_loops(
     t0 = time.perf_counter()
     indices = times.scan_indices
     mount = run.runner.mount
-    previous = None if run.previous is None or not run.connected else run.previous.graph(_laser_of(mount))
+    previous = None if run.previous is None or not run.connected else run.previous.graph(mount)
     apart = run.previous is not None and not run.connected  # a new trajectory: numbered after the earlier runs
     first = len(run.previous.sessions) if apart else 0
     backend = flt.close_loops(lambda steps: run.runner.scans_at([indices[k] for k in steps]), None, previous, first)
@@ -443,10 +444,6 @@ def _close_loops(
         base = mount.base_of(np.column_stack([graph["x_m"], graph["y_m"], graph["yaw_rad"]]))
         graph["x_m"], graph["y_m"], graph["yaw_rad"] = base[:, 0].tolist(), base[:, 1].tolist(), base[:, 2].tolist()
     return record, graph, backend
-
-
-def _laser_of(mount) -> Callable[[np.ndarray], np.ndarray]:
-    return (lambda poses: np.asarray(poses, dtype=float)) if mount is None else mount.laser_of
 
 
 def _graph_scans(backend: PoseGraphBackEnd) -> tuple[np.ndarray, np.ndarray]:
@@ -469,10 +466,9 @@ def _sessions(run: _OpenRun, backend: PoseGraphBackEnd | None) -> tuple[list[dic
     for s in prev.sessions:
         poses = s.poses
         if run.connected and s.connected and backend is not None and backend.applied and len(poses):
-            laser = _laser_of(mount)(poses)
-            moved = backend.correct_trajectory(laser, session=s.index)
-            poses = moved if mount is None else mount.base_of(moved)
-        at = s.map + shift if (s.map or not run.connected) else 0
+            moved = backend.correct_trajectory(laser_poses(mount, poses), session=s.index)
+            poses = base_poses(mount, moved)
+        at = s.map + shift
         out.append({
             "session": s.index, "input": s.input, "map": at, "connected": at == 0, "t_s": s.t_s.tolist(),
             "x_m": poses[:, 0].tolist(), "y_m": poses[:, 1].tolist(), "yaw_rad": poses[:, 2].tolist(),

@@ -137,7 +137,7 @@ def process(
             "--initial-pose",
             metavar="X Y YAW",
             help="With --continue: where the first scan stands in PREVIOUS's map (m, m, rad; the base's pose). "
-            "Default: found by the localiser's global start.",
+            "Default: found by searching PREVIOUS's whole map with the run's first scans.",
         ),
     ] = None,
     if_lost: Annotated[

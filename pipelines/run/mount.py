@@ -50,6 +50,16 @@ class LaserMount:
         return compose(laser_poses, inverse(self.pose))
 
 
+def laser_poses(mount: LaserMount | None, base_poses: np.ndarray) -> np.ndarray:
+    """Laser poses (..., 3) of base poses: the same where the input records no mount."""
+    return np.asarray(base_poses, dtype=float) if mount is None else mount.laser_of(base_poses)
+
+
+def base_poses(mount: LaserMount | None, laser_poses: np.ndarray) -> np.ndarray:
+    """Base poses (..., 3) of laser poses: the same where the input records no mount."""
+    return np.asarray(laser_poses, dtype=float) if mount is None else mount.base_of(laser_poses)
+
+
 class BaseFrameTree:
     """A filter's ancestry tree whose trajectories are the base's poses."""
 
