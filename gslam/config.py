@@ -301,6 +301,14 @@ class FilterConfig:
     the model for the next ~3 x `window` updates (70 on the campus), while errors that stay large still
     grow the estimate by up to (1 + (clip^2 - 1) / window) per update (floor to full model in about 10
     updates). 0: off (the plain running mean of squares)."""
+    continue_max_p: float = 0.57
+    """A map continued from an earlier run (`gslam process --continue`, `GSlamFilter.seed_map`) comes in
+    with every point's p capped at this: still matched (at or above `match_min_p`), but no longer sure. A
+    place this run sees again is then mapped from this run's own returns: a point drawn at a return takes
+    its cell's p as its prior and gains the hit, so it outscores the old point in the cell at the first
+    sighting, while a saved point held at 1 - 1e-6 would never be outscored; and free space seen three
+    times takes an old point below matching. The earlier map carries its run's own pose errors, which the
+    new run would otherwise inherit where it revisits (docs/CHOICES.md, "Maps that go on"). 1: p as saved."""
     initial_sigma_xy_m: float = 0.0
     """Spread [m, sd] of the particles' initial positions (0: all start at the origin or the GPS fit)."""
     initial_sigma_phi_rad: float = 0.0
@@ -398,6 +406,7 @@ _LIMITS: dict[str, tuple[float, float, bool]] = {
     "match_line_pair_m": (0, _CELL_M, True),
     "match_window_margin_m": (0, _CELL_M, True),
     "match_min_p": (0, 1, True),
+    "continue_max_p": (0, 1, False),
     "weight_miss_m": (0, _METRES, False),
     "weight_gain": (0, math.inf, False),
     "match_max_iterations": (1, 10_000, True),

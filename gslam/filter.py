@@ -168,10 +168,12 @@ class GSlamFilter:
 
     def seed_map(self, xy: np.ndarray, p: np.ndarray) -> None:
         """Start every particle's map from a map built before (`gslam process --continue`): points (K, 2)
-        and their probabilities (K,). The map keeps one point per cell (`cell_size_m`), the most probable
-        one where a saved map, moved by its pose graph, holds several; sorted by cell as the updates keep it."""
+        and their probabilities (K,), each p capped at `continue_max_p` so that this run's own returns
+        replace the old points where it sees a place again. The map keeps one point per cell
+        (`cell_size_m`), the most probable one where a saved map, moved by its pose graph, holds several;
+        sorted by cell as the updates keep it."""
         xy = np.asarray(xy, dtype=float).reshape(-1, 2)
-        p = np.asarray(p, dtype=float).reshape(-1)
+        p = np.minimum(np.asarray(p, dtype=float).reshape(-1), self.cfg.continue_max_p)
         keys = cell_keys(xy, self.cfg.cell_size_m)
         order = np.lexsort((-p, keys))  # by cell, the most probable first
         keys, xy, p = keys[order], xy[order], p[order]

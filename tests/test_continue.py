@@ -214,3 +214,34 @@ def test_the_start_is_carried_back_to_the_first_scan():
     start = compose(found, back)
     # the odometry's motion from the start to the later scan, applied to the start, gives the pose found
     assert np.allclose(compose(start, compose(inverse(odom_first), odom_later)), found)
+
+
+def test_a_continued_map_yields_to_the_new_runs_returns():
+    """`continue_max_p`: a wall saved 4 cm behind where the new run's scans see it (the earlier run's pose
+    error), at the saved map's full p. Capped on load, the old points give way in their cells to points
+    drawn at this run's returns at the first sightings; held at their saved p, they never do."""
+    from gslam.config import FilterConfig
+    from gslam.filter import GSlamFilter
+    from gslam.scan import Scan, ScanGeometry
+
+    geom = ScanGeometry(181, -math.pi / 2, math.pi / 180, 30.0)
+    bearings = geom.bearings_rad
+    ranges = np.where(np.abs(bearings) < 1.0, 5.0 / np.cos(bearings), np.inf)  # a wall at x = 5 m
+    y = np.arange(-8.0, 8.0, 0.1) + 0.05
+    saved_xy = np.column_stack([np.full_like(y, 5.04), y])  # in the cells x 5.0 to 5.1
+    saved_p = np.full(len(y), 1 - 1e-6)
+
+    def wall_x(max_p: float) -> np.ndarray:
+        cfg = FilterConfig(particles=3, seed=0, proposal="motion", update_schedule="every_scan", continue_max_p=max_p)
+        flt = GSlamFilter(cfg, np.zeros(3))
+        flt.seed_map(saved_xy, saved_p)
+        assert flt.maps[0].p.max() <= max_p
+        for k in range(3):
+            flt.step(Scan(float(k), ranges, geom))
+        m = flt.maps[flt.best_particle()]
+        band = (m.xy[:, 0] >= 5.0) & (m.xy[:, 0] < 5.1) & (np.abs(m.xy[:, 1]) < 3.0)
+        return m.xy[band, 0]
+
+    capped, saved = wall_x(FilterConfig().continue_max_p), wall_x(1.0)
+    np.testing.assert_allclose(saved, 5.04, atol=1e-6)  # every old point kept where it was saved
+    assert len(capped) > 40 and np.median(np.abs(capped - 5.0)) < 0.015  # the new run's returns replaced them
