@@ -38,6 +38,7 @@ from pipelines.evaluation.localisation import MAP_TOPIC, PARTICLES_TOPIC, POSE_T
 from pipelines.localise.maps import MAX_COORDINATE_M, SavedMap, load_map
 from pipelines.run import interrupts
 from pipelines.run.input_log import InputLog
+from pipelines.run.mount import base_poses, laser_poses
 from pipelines.run.recorded_input import fingerprint
 from pipelines.run.scans import scan_stream
 
@@ -340,8 +341,7 @@ def localise(req: LocaliseRequest, progress: Callable[[int, int], None] | None =
     if log.motion_model != "odometry":
         raise InputError(f"{req.input_path}: localisation needs odometry poses (this log has {log.motion_model})")
     mount = log.mount
-    laser_of = (lambda p: p) if mount is None else (lambda p: mount.laser_of(np.asarray(p)[None])[0])
-    initial = None if req.initial_pose is None else laser_of(np.asarray(req.initial_pose, dtype=float))
+    initial = None if req.initial_pose is None else laser_poses(mount, req.initial_pose)
     loc = MonteCarloLocaliser(saved.field, req.config, initial, req.initial_sigma)
     if req.rrd is not None:
         import rerun  # noqa: F401  (its import takes a while: before any temporary exists)
@@ -419,7 +419,6 @@ def _run_scans(
     scans done. Each scan's messages are written as one: a signal meanwhile waits for them
     (`interrupts.whole_step`, as `gslam process` writes its steps)."""
     mount = log.mount
-    base_of = (lambda p: p) if mount is None else mount.base_of
     odom_prev = None
     travel = 0.0
     done = False
@@ -444,11 +443,11 @@ def _run_scans(
             odom_prev = odom_last
             st = loc.step(t_s, ends)
             step_ms = (time.perf_counter() - t0) * 1e3
-            base = np.asarray(base_of(st.pose[None])[0] if mount is not None else st.pose)
+            base = base_poses(mount, st.pose)
             particles = None
             if st.updated:
                 thin = loc.poses[:: max(1, len(loc.poses) // MAX_PARTICLES_WRITTEN)]
-                particles = np.asarray(base_of(thin) if mount is not None else thin)
+                particles = base_poses(mount, thin)
             scans.writing = True
             with interrupts.whole_step:  # the scan's pose, state, transforms and particles, and its count: all or none
                 _write_step(out, t_s, stamp_s, st, base, odom_last, mount, step_ms)

@@ -24,7 +24,7 @@ from pipelines.errors import InputError
 from pipelines.methods import make_filter, method
 from pipelines.run.input_log import ControlEvent, GpsEvent, InputLog, OdomEvent, ScanEvent
 from pipelines.run.live_graph import CorrectedView
-from pipelines.run.mount import BaseFrameView
+from pipelines.run.mount import BaseFrameView, laser_poses
 from pipelines.run.odometry_check import ReversalCheck
 
 MAX_THREADS = max(64, 4 * (os.cpu_count() or 1))
@@ -266,7 +266,7 @@ class SlamRunner:
                     mount = self.mount
                     if odom_prev is None:
                         first = odom_last if self.start is None else self.start
-                        self.filter.poses[:] = first if mount is None else mount.laser_of(first)
+                        self.filter.poses[:] = laser_poses(mount, first)
                     else:
                         delta = odometry_delta(odom_prev, odom_last)
                         if mount is None:
