@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from mcaplog import channels as ch
+from pipelines.bench.suites import section_head
 
 CONTINUE_CHANNELS = (ch.SLAM_MAP_FINAL, ch.SLAM_GRAPH, ch.SLAM_GRAPH_SCANS, ch.SLAM_SESSIONS)
 """What a result holds for a run that continues it (besides its trajectory, which it holds anyway)."""
@@ -215,12 +216,7 @@ def _means(runs: list[ContinueRun]) -> list[str]:
 
 def continue_section(runs: list[ContinueRun], command: str, machine: str, software: str) -> str:
     lines = [
-        "## Maps that go on: a log continued from its first half",
-        "",
-        f"- Command: `{command}`",
-        f"- Machine: {machine}",
-        f"- Software: {software}",
-        f"- Date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}",
+        *section_head("## Maps that go on: a log continued from its first half", command, machine, software),
         "- Logs: the robustness suite's corpus (Radish odometry corrupted, odometry seed 0), each cut at its",
         "  middle scan. Whole: the log mapped at once; alone: the second half mapped from nothing; continued:",
         "  `gslam process SECOND OUT --continue FIRST_RESULT`, the start found by the run (two of its scans",

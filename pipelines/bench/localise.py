@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from mcaplog.mcapio import McapInput
+from pipelines.bench.suites import section_head
 
 SCENARIOS = ("global", "wrong start", "half map", "kidnap")
 
@@ -173,12 +174,7 @@ def _line(r: LocaliseRun) -> str:
 
 def localise_section(runs: list[LocaliseRun], command: str, machine: str, software: str) -> str:
     lines = [
-        "## Localisation in a saved map",
-        "",
-        f"- Command: `{command}`",
-        f"- Machine: {machine}",
-        f"- Software: {software}",
-        f"- Date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}",
+        *section_head("## Localisation in a saved map", command, machine, software),
         "- Logs: the robustness suite's corpus, the Freiburg logs with their odometry and the Radish logs with",
         "  odometry corrupted (odometry seed 0).",
         "- Map and reference: `gslam process` (N 30, seed 0) on the same log; `gslam localise` with the defaults",

@@ -16,14 +16,21 @@ from __future__ import annotations
 
 import statistics
 import tempfile
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from pipelines.bench.corpus import CorpusLog, build_corpus
 from pipelines.bench.lama import MODE_NAMES, LamaRun, lama_note, lama_seed, run_lama
-from pipelines.bench.suites import Errors, cartographer_lines, errors_cell, ingest_to, peer_verdict, run_gmapping
+from pipelines.bench.suites import (
+    Errors,
+    cartographer_lines,
+    errors_cell,
+    ingest_to,
+    peer_verdict,
+    run_gmapping,
+    section_head,
+)
 from pipelines.bench.tasks import Task, run_task
 from pipelines.run.input_log import InputLog
 
@@ -186,12 +193,7 @@ def robustness_section(
     seeds = sorted({s for r in results for s in r.gslam_m})
     lama_ran = any(r.lama for r in results)
     lines = [
-        "## Robustness: the corpus, beside GMapping and LaMa",
-        "",
-        f"- Command: `{command}`",
-        f"- Machine: {machine}",
-        f"- Software: {software}",
-        f"- Date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}",
+        *section_head("## Robustness: the corpus, beside GMapping and LaMa", command, machine, software),
         "- Logs: the Freiburg logs with their published relations and real odometry (fr079's is wrong when",
         "  the robot backs up); the Radish corrected logs with odometry corrupted by the documented, seeded",
         f"  models of `pipelines/bench/corpus.py` (corpus seed {corpus_seed}: scale and turn bias, rotation scale,",

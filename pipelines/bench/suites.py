@@ -44,6 +44,19 @@ CARTOGRAPHER_PUBLISHED: dict[str, tuple[float, float]] = {
 tuned per log, with global loop closure): the far aim, not run here."""
 
 
+def section_head(title: str, command: str, machine: str, software: str) -> list[str]:
+    """A suite's section of `docs/BENCHMARKS.md` opens with its title and what produced it: the command,
+    the machine, the software's versions and the date (UTC)."""
+    return [
+        title,
+        "",
+        f"- Command: `{command}`",
+        f"- Machine: {machine}",
+        f"- Software: {software}",
+        f"- Date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}",
+    ]
+
+
 def cartographer_lines() -> list[str]:
     """The far aim under a comparison table: Cartographer's published figures."""
     figures = ", ".join(f"{log} {t:.4f} m / {r:.2f} deg" for log, (t, r) in CARTOGRAPHER_PUBLISHED.items())
@@ -270,12 +283,7 @@ def freiburg_section(
     lama_runs = lama_runs or []
     seeds = sorted({r.seed for r in runs})
     lines = [
-        "## Freiburg indoor logs: relations error (Kuemmerle et al. 2009)",
-        "",
-        f"- Command: `{command}`",
-        f"- Machine: {machine}",
-        f"- Software: {software}",
-        f"- Date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}",
+        *section_head("## Freiburg indoor logs: relations error (Kuemmerle et al. 2009)", command, machine, software),
         "- Each run is `gslam process LOG.mcap OUT.mcap --particles N --seed S` with the defaults, timed whole",
         f"  in a child process (import to exit, MCAP and Rerun recording written), then `gslam eval`; seeds"
         f" {', '.join(map(str, seeds))}.",
@@ -387,12 +395,7 @@ def speed_section(
         ]
     )
     lines = [
-        "## Speed: whole `gslam process` runs",
-        "",
-        f"- Command: `{command}`",
-        f"- Machine: {machine}",
-        f"- Software: {software}",
-        f"- Date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}",
+        *section_head("## Speed: whole `gslam process` runs", command, machine, software),
         f"- Wall: `gslam process` in a child process, import to exit, median of {repeats} runs (this machine is",
         "  shared; medians). ms per update: the filter's time on the steps that update the maps (median,",
         "  90th percentile). Update ratio: median update time over the last tenth of the log / over its second",
