@@ -321,6 +321,9 @@ def _run_steps(
     except (KeyboardInterrupt, Exception) as e:  # SIGINT, SIGTERM (interrupts.Stopped) or an error
         interrupts.hold()
         interrupts.acknowledge()
+        signum = interrupts.received()
+        if not isinstance(e, KeyboardInterrupt) and signum is not None:
+            e = interrupts.Stopped(signum)  # raised inside an import or a compiled kernel, it came back wrapped
         if isinstance(e, KeyboardInterrupt) and len(times.filter_ms) >= total:
             times.after_last_scan = e  # every scan was processed: the run is whole, finish it, then stop
         else:

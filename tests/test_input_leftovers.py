@@ -335,6 +335,49 @@ def test_a_signal_while_gslam_starts_exits_128_plus_its_number(longer_input, tmp
             assert mcap_info(out)["metadata"]["result"]["interrupted"] is True
 
 
+_WRAPPED_SIGNAL = """
+import os, signal, sys, time
+
+class _Lands:
+    def __set_name__(self, owner, name):  # Python 3.11 wraps what is raised here in a RuntimeError
+        os.kill(os.getpid(), signal.SIG{sig})
+        time.sleep(5)
+
+def _a_class_being_made():  # as numba's import makes its classes
+    class Kernel:
+        field = _Lands()
+
+import pipelines.cli as cli
+if sys.argv[1] == "loading":
+    import pipelines.cli.app as app
+    app.run = _a_class_being_made
+    cli.run()
+else:
+    import typer
+    from pipelines.cli.errors import guarded
+    from pipelines.run import interrupts
+    interrupts.install()
+    try:
+        guarded(_a_class_being_made)()
+    except typer.Exit as e:
+        sys.exit(e.exit_code)
+"""
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+@pytest.mark.parametrize("where", ["loading", "command"])
+def test_a_signal_that_comes_out_wrapped_in_an_error_is_still_the_signal(sig, where):
+    """A signal whose handler runs inside a class body being made (numba's import does this) comes out of
+    Python 3.11 as a RuntimeError with the signal as its cause. While the command line loads, or in the
+    command's body, it still ends with one line and 128 + its number, not a traceback or an internal error
+    (CI once saw exit 1 and a traceback from a SIGTERM 0.3 s into `gslam process`)."""
+    code = _WRAPPED_SIGNAL.replace("{sig}", sig.name[3:])
+    proc = subprocess.run([sys.executable, "-c", code, where], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 128 + sig, (proc.returncode, proc.stderr)
+    assert "Traceback" not in proc.stderr and "internal error" not in proc.stderr, proc.stderr
+    assert "interrupted" in proc.stderr, proc.stderr
+
+
 def test_a_signal_the_command_did_not_report_sets_the_exit_code():
     """The rule behind the exit codes: a signal raised outside the command's body (typer's silent 130), or
     one whose exception was lost, ends with 128 + its number; one the command reported keeps its code."""

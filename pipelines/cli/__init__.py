@@ -60,6 +60,13 @@ def run() -> None:
         interrupts.exiting()
         _remove_orphans()
         _interrupted(interrupts.exit_code_of(e))
+    except Exception as e:  # a signal's exception wrapped on its way (`interrupts.behind`), or a real error
+        stop = interrupts.behind(e)
+        if stop is None:
+            raise
+        interrupts.exiting()
+        _remove_orphans()
+        _interrupted(interrupts.exit_code_of(stop))
     except SystemExit as e:
         interrupts.exiting()
         _remove_orphans()

@@ -67,6 +67,26 @@ def _os_error_line(e: OSError) -> str:
     return f"{where}: {why}" if where else why
 
 
+def _signals_unwrapped(fn, *args, **kwargs):
+    """`fn(...)`, with a signal's exception that came out wrapped in another (`interrupts.behind`, e.g. a
+    RuntimeError from an import the signal landed in) raised as itself: it is reported as the signal,
+    not as an internal error."""
+    try:
+        return fn(*args, **kwargs)
+    except Exception as e:
+        stop = interrupts.behind(e)
+        if stop is None:
+            raise
+        raise stop from None
+
+
+def _report_interrupt(e: KeyboardInterrupt) -> None:
+    """One line for a SIGINT / SIGTERM that stopped the command, and its exit code (130 / 143)."""
+    what = "; ".join([f"interrupted ({e.args[0] if e.args else 'SIGINT'})", *getattr(e, "__notes__", [])])
+    typer.secho(what, fg=typer.colors.YELLOW, err=True)
+    raise typer.Exit(exit_code_of(e)) from None
+
+
 def guarded(fn):
     """Run a command with SIGINT/SIGTERM handled, turning known bad-input errors into one clear line."""
 
@@ -76,7 +96,7 @@ def guarded(fn):
 
         with stop_on_signals():
             try:
-                done = fn(*args, **kwargs)
+                done = _signals_unwrapped(fn, *args, **kwargs)
                 interrupts.command_finished()
                 return done
             except typer.Exit:
@@ -87,10 +107,7 @@ def guarded(fn):
                 sys.stderr.close()
                 raise typer.Exit(0) from None
             except KeyboardInterrupt as e:
-                code = exit_code_of(e)
-                what = "; ".join([f"interrupted ({e.args[0] if e.args else 'SIGINT'})", *getattr(e, "__notes__", [])])
-                typer.secho(what, fg=typer.colors.YELLOW, err=True)
-                raise typer.Exit(code) from None
+                _report_interrupt(e)
             except OSError as e:  # missing, unreadable or unwritable files, disk full, ...
                 if os.environ.get("GSLAM_DEBUG"):
                     raise

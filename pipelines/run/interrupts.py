@@ -130,6 +130,21 @@ def _unraisable(unraisable) -> None:
 _default_unraisable = sys.unraisablehook
 
 
+def behind(e: BaseException) -> KeyboardInterrupt | None:
+    """The signal's `KeyboardInterrupt` that `e` stands for, or None. A handler's exception raised inside
+    some calls comes out wrapped: Python 3.11 turns one raised in a `__set_name__` (a class body being
+    created, e.g. while numba imports) into a RuntimeError whose cause it is. When a signal has come, an
+    exception with it in its chain (cause or context) is that signal, not an error."""
+    seen: set[int] = set()
+    link: BaseException | None = e
+    while link is not None and id(link) not in seen:
+        if isinstance(link, KeyboardInterrupt):
+            return link
+        seen.add(id(link))
+        link = link.__cause__ or link.__context__
+    return None
+
+
 def install() -> None:
     """Handle SIGINT and SIGTERM from now on (in the main thread only): the command line's first act."""
     if threading.current_thread() is threading.main_thread():
