@@ -67,7 +67,8 @@ def test_mid_timeline_the_path_and_the_plots_show_the_run_so_far(tmp_path):
         line = np.argwhere(np.abs(full[:, 1260:] - colour).max(axis=2) < 30)[:, 1]  # the plots, right of the map
         return gold, white, green, line
 
-    gold, white, green, line = extents(rerun_screenshot.screenshot(rrd, tmp_path / "mid.png", time_s=30.0))
+    end_png, mid_png = rerun_screenshot.screenshots(rrd, [(tmp_path / "end.png", None), (tmp_path / "mid.png", 30.0)])
+    gold, white, green, line = extents(mid_png)
     assert len(gold) > 50 and len(white) > 20 and len(green) > 100, (len(gold), len(white), len(green))
     span = green.max() - green.min()  # the GPS line, x = -8 .. 8 m
 
@@ -77,7 +78,7 @@ def test_mid_timeline_the_path_and_the_plots_show_the_run_so_far(tmp_path):
     # At 30 s the robot is at x = -8 + 16 * 30 / 119 = -4.0 m: a quarter of the way.
     assert along(gold.min()) < 0.05 and 0.15 < along(gold.max()) < 0.4, (along(gold.min()), along(gold.max()))
     assert 0.15 < along(np.median(white)) < 0.45 and white.min() >= gold.max() - 10
-    gold_end, _, green_end, line_end = extents(rerun_screenshot.screenshot(rrd, tmp_path / "end.png"))
+    gold_end, _, green_end, line_end = extents(end_png)
     assert (gold_end.max() - green_end.min()) / (green_end.max() - green_end.min()) > 0.9
     assert len(line) > 30 and len(line_end) > len(line), (len(line), len(line_end))
     assert np.ptp(line) > 30 and np.ptp(line_end) > 2.5 * np.ptp(line), (np.ptp(line), np.ptp(line_end))

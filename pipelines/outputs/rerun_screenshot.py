@@ -8,11 +8,13 @@ no GPU or screen is needed. `available()` says what is missing, for tests to ski
 
 from __future__ import annotations
 
+import itertools
 import os
 import shutil
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 from pipelines.outputs.rerun_viewer import free_port, rerun_binary, wait_for_port
@@ -51,13 +53,27 @@ def screenshot(
     timeline (seconds since the log's start), as a user does, by typing it into the time panel's field
     (`TIME_FIELD_XY`: where the default blueprint puts it at the default size); else the cursor stays
     where the viewer puts it, at the end of the recording."""
+    return screenshots(rrd, [(out, time_s)], size, wait_s)[0]
+
+
+def screenshots(
+    rrd: Path,
+    shots: Sequence[tuple[Path, float | None]],
+    size: tuple[int, int] = (1600, 900),
+    wait_s: float = LOAD_WAIT_S,
+) -> list[Path]:
+    """Several `screenshot`s of one recording, loaded once: `(out, time_s)` in order, each as there; a
+    `time_s` of None (the cursor where the viewer put it, at the end) only before any cursor move."""
     from playwright.sync_api import sync_playwright
 
     why = available()
     if why is not None:
         raise RuntimeError(why)
-    if time_s is not None and size != (1600, 900):
+    times = [t for _, t in shots]
+    if any(t is not None for t in times) and size != (1600, 900):
         raise ValueError("time_s needs the default size, where TIME_FIELD_XY is")
+    if any(a is not None and b is None for a, b in itertools.pairwise(times)):
+        raise ValueError("a shot at the viewer's own cursor (time_s None) must come before any cursor move")
     web, grpc = free_port(), free_port()
     server = subprocess.Popen(
         [rerun_binary(), "--web-viewer", "--web-viewer-port", str(web), "--port", str(grpc), str(rrd)],
@@ -75,20 +91,21 @@ def screenshot(
                 page = browser.new_page(viewport={"width": size[0], "height": size[1]})
                 page.goto(url)
                 time.sleep(wait_s)
-                if time_s is not None:
-                    page.mouse.click(*TIME_FIELD_XY)  # (the viewer's UI is one canvas: no DOM to select)
-                    time.sleep(1.0)
-                    page.keyboard.press("Control+A")
-                    page.keyboard.type(f"+{time_s:g}s")
-                    page.keyboard.press("Enter")
-                    time.sleep(3.0)
-                Path(out).parent.mkdir(parents=True, exist_ok=True)
-                page.screenshot(path=str(out))
+                for out, time_s in shots:
+                    if time_s is not None:
+                        page.mouse.click(*TIME_FIELD_XY)  # (the viewer's UI is one canvas: no DOM to select)
+                        time.sleep(1.0)
+                        page.keyboard.press("Control+A")
+                        page.keyboard.type(f"+{time_s:g}s")
+                        page.keyboard.press("Enter")
+                        time.sleep(3.0)
+                    Path(out).parent.mkdir(parents=True, exist_ok=True)
+                    page.screenshot(path=str(out))
             finally:
                 browser.close()
     finally:
         stop_group(server)
-    return Path(out)
+    return [Path(out) for out, _ in shots]
 
 
 def stop_group(process: subprocess.Popen) -> None:
