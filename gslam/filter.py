@@ -98,6 +98,8 @@ class GSlamFilter:
         """Per step: the noise-free motion from the scan before (in its frame), whatever the filter did."""
         self._corrected_map: tuple[int, np.ndarray, np.ndarray] | None = None
         """(particle, points, p): the best particle's map moved with the pose graph (`close_loops`)."""
+        self._seeded: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        """(position keys, capped p, saved p) of the points `seed_map` capped, sorted by key."""
         self.placed: tuple[np.ndarray, np.ndarray] | None = None
         """(times, poses) of the best particle's trajectory with every scan placed by its final map
         (`place_every_scan`); `best_trajectory()` gives it once set."""
@@ -173,10 +175,11 @@ class GSlamFilter:
         (`cell_size_m`), the most probable one where a saved map, moved by its pose graph, holds several;
         sorted by cell as the updates keep it."""
         xy = np.asarray(xy, dtype=float).reshape(-1, 2)
-        p = np.minimum(np.asarray(p, dtype=float).reshape(-1), self.cfg.continue_max_p)
+        saved = np.asarray(p, dtype=float).reshape(-1)
+        p = np.minimum(saved, self.cfg.continue_max_p)
         keys = cell_keys(xy, self.cfg.cell_size_m)
         order = np.lexsort((-p, keys))  # by cell, the most probable first
-        keys, xy, p = keys[order], xy[order], p[order]
+        keys, xy, p, saved = keys[order], xy[order], p[order], saved[order]
         first = np.ones(len(keys), dtype=bool)
         first[1:] = keys[1:] != keys[:-1]
         if self.cfg.max_points_per_cell > 1:
@@ -188,6 +191,27 @@ class GSlamFilter:
         self.maps = [seeded] * self.cfg.particles
         self._layout = None
         self._points_total = len(seeded) * self.cfg.particles
+        capped = saved[first].astype(MAP_DTYPE) > seeded.p
+        point_keys = _point_keys(seeded.xy[capped])
+        by_key = np.argsort(point_keys)
+        self._seeded = (point_keys[by_key], seeded.p[capped][by_key], saved[first][capped][by_key].astype(MAP_DTYPE))
+
+    def _with_saved_p(self, xy: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The map with each seeded point that this run never updated (the same position and the capped p,
+        bit for bit) back at the p it was saved with: the cap (`seed_map`) is for this run's matching and
+        updates, not a belief of its own, so a place only an earlier run saw keeps its walls in the saved
+        map and the occupancy grid (whose threshold, 0.65, is above the cap)."""
+        if self._seeded is None or len(self._seeded[0]) == 0 or len(xy) == 0:
+            return xy, p
+        keys, capped_p, saved_p = self._seeded
+        point_keys = _point_keys(xy)
+        at = np.minimum(np.searchsorted(keys, point_keys), len(keys) - 1)
+        untouched = (keys[at] == point_keys) & (np.asarray(p) == capped_p[at])
+        if not untouched.any():
+            return xy, p
+        p = np.array(p, copy=True)
+        p[untouched] = saved_p[at[untouched]]
+        return xy, p
 
     def close_loops(
         self,
@@ -230,7 +254,7 @@ class GSlamFilter:
         if self._corrected_map is not None and self._corrected_map[0] == particle:
             return self._corrected_map[1], self._corrected_map[2]
         m = self.maps[particle]
-        return m.xy, m.p
+        return self._with_saved_p(m.xy, m.p)
 
     def _due(self) -> bool:
         """Open point 7: update every scan, or (travel) once the motion since the last update, summed
@@ -402,6 +426,12 @@ class GSlamFilter:
         poses[:, 2] = wrap_angle(poses[:, 2])
         self.poses = np.where(matched[:, None], poses, self.poses)
         return int(matched.sum()), log_like
+
+
+def _point_keys(xy: np.ndarray) -> np.ndarray:
+    """One int64 per map point (K, 2): its two coordinates' bits as stored (`MAP_DTYPE`), so that a point
+    is found again only where it was not moved."""
+    return np.ascontiguousarray(xy, dtype=MAP_DTYPE).view(np.int64).reshape(-1)
 
 
 def _end_points(scan: Scan, stride: int = 1) -> np.ndarray:

@@ -112,6 +112,30 @@ def test_the_result_holds_every_run_and_a_third_continues_the_second(runs):
         assert name in printed.stdout, name
 
 
+def test_the_continued_maps_grid_keeps_the_earlier_runs_walls(runs):
+    """Points of the first run's map that the second run left as they were are saved at their own p, not at
+    the cap it read them with, and stand as walls in the second result's occupancy grid."""
+    from gslam.config import FilterConfig
+    from pipelines.outputs.navigation_map import OCCUPIED_THRESH, grid_from_result
+    from pipelines.outputs.occupancy_grid import OCCUPIED
+
+    tmp, _, _, _ = runs
+    a, b = read_result(tmp / "a-map.mcap"), read_result(tmp / "b-map.mcap")
+    a_keys = np.ascontiguousarray(a.map_xy, dtype=np.float32).view(np.int64).ravel()
+    b_keys = np.ascontiguousarray(b.map_xy, dtype=np.float32).view(np.int64).ravel()
+    kept_a = np.flatnonzero(np.isin(a_keys, b_keys))  # where the second run drew nothing new
+    at = {k: i for i, k in enumerate(b_keys)}
+    in_b = np.array([at[k] for k in a_keys[kept_a]])
+    p_a, p_b = a.map_p[kept_a], b.map_p[in_b]
+    cap = np.float32(FilterConfig().continue_max_p)
+    assert not np.any((p_b == cap) & (p_a > cap))  # none left at the cap it was read with
+    same = p_b == p_a  # not seen again (the others were: updated from the cap by the second run's returns)
+    walls = same & (p_a >= OCCUPIED_THRESH)
+    assert walls.sum() > 50, (len(kept_a), same.sum(), walls.sum())
+    grid = grid_from_result(tmp / "b-map.mcap")
+    assert np.mean(grid.state_at(b.map_xy[in_b[walls]]) == OCCUPIED) > 0.99
+
+
 def test_localise_in_a_continued_map(runs):
     """`gslam localise` takes a continued result as its map: the third run's scans, localised in it from
     no initial pose, are tracked."""
@@ -245,3 +269,32 @@ def test_a_continued_map_yields_to_the_new_runs_returns():
     capped, saved = wall_x(FilterConfig().continue_max_p), wall_x(1.0)
     np.testing.assert_allclose(saved, 5.04, atol=1e-6)  # every old point kept where it was saved
     assert len(capped) > 40 and np.median(np.abs(capped - 5.0)) < 0.015  # the new run's returns replaced them
+
+
+def test_places_only_an_earlier_run_saw_keep_their_saved_p():
+    """The cap is for the continued run's matching and updates: a wall it never sees (behind its laser)
+    comes out of `map_points` at the p it was saved with, bit for bit, so the saved map and the occupancy
+    grid (threshold 0.65, above the cap) keep it; the wall it sees is its own again."""
+    from gslam.config import FilterConfig
+    from gslam.filter import GSlamFilter
+    from gslam.scan import Scan, ScanGeometry
+
+    geom = ScanGeometry(181, -math.pi / 2, math.pi / 180, 30.0)
+    ranges = np.where(np.abs(geom.bearings_rad) < 1.0, 5.0 / np.cos(geom.bearings_rad), np.inf)  # x = 5 m
+    y = np.arange(-8.0, 8.0, 0.1) + 0.05
+    behind = np.column_stack([np.full_like(y, -5.05), y])  # never in the laser's view
+    ahead = np.column_stack([np.full_like(y, 5.05), y])
+    saved_p = np.linspace(0.7, 1 - 1e-6, len(y))
+    cfg = FilterConfig(particles=3, seed=0, proposal="motion", update_schedule="every_scan")
+    flt = GSlamFilter(cfg, np.zeros(3))
+    flt.seed_map(np.vstack([behind, ahead]), np.r_[saved_p, saved_p])
+    for k in range(3):
+        flt.step(Scan(float(k), ranges, geom))
+    xy, p = flt.map_points(flt.best_particle())
+    old = xy[:, 0] < 0
+    order = np.argsort(xy[old, 1])
+    np.testing.assert_array_equal(xy[old][order], behind.astype(np.float32))
+    np.testing.assert_array_equal(p[old][order], saved_p.astype(np.float32))
+    assert flt.maps[flt.best_particle()].p[flt.maps[flt.best_particle()].xy[:, 0] < 0].max() <= cfg.continue_max_p
+    seen = (xy[:, 0] > 4.9) & (np.abs(xy[:, 1]) < 3.0)
+    assert seen.sum() > 40 and not np.isin(xy[seen, 0], np.float32(5.05)).any()  # drawn by this run
