@@ -69,15 +69,25 @@ def peak_rss_mb() -> float:
     return usage()["peak_rss_mb"]
 
 
-def _occupancy(runner: SlamRunner, log: InputLog, scan_indices: list[int], cfg: RunConfig) -> OccupancyMap:
-    """The final trinary occupancy grid (scans cast from the final laser poses), for /map/occupancy."""
+def _occupancy(
+    runner: SlamRunner, log: InputLog, scan_indices: list[int], cfg: RunConfig, backend: PoseGraphBackEnd | None
+) -> OccupancyMap:
+    """The final trinary occupancy grid (scans cast from the final laser poses), for /map/occupancy; in a
+    continued run, the earlier runs' graph nodes' returns too (`build_grid`'s `earlier`)."""
     from pipelines.outputs.navigation_map import build_grid, occupancy_probabilities
 
     flt = runner.filter  # laser poses: where the scans were taken
     times, laser = flt.best_trajectory()
     xy, p = flt.map_points(flt.best_particle())
     p = occupancy_probabilities(p, getattr(cfg.filter, "map_update", "binary"))
-    grid = build_grid(log, np.asarray(scan_indices), laser, xy, p, cfg.occupancy_resolution_m, cfg.laser_yaw_offset_rad)
+    earlier = []
+    if backend is not None and len(backend.session):
+        own = max(backend.session)
+        earlier = [(backend.estimate[k], backend.points[k]) for k, s in enumerate(backend.session) if s < own]
+    grid = build_grid(
+        log, np.asarray(scan_indices), laser, xy, p, cfg.occupancy_resolution_m, cfg.laser_yaw_offset_rad,
+        earlier=earlier,
+    )  # fmt: skip
     t_last = float(times[-1]) if len(times) else 0.0
     return OccupancyMap(t_last, grid.state, grid.spec.origin_xy_m, grid.spec.resolution_m)
 
@@ -502,7 +512,7 @@ def _finish(run: _OpenRun, times: _StepTimes, notice: Callable[[str], None] | No
             if run.cfg.occupancy and not times.interrupted and times.scan_indices:
                 if notice is not None:
                     notice("building the occupancy grid (every scan ray-cast at the final poses)")
-                occupancy = _occupancy(run.runner, run.log, times.scan_indices, run.cfg)
+                occupancy = _occupancy(run.runner, run.log, times.scan_indices, run.cfg, backend)
             scans = None if backend is None else _graph_scans(backend)
             sessions, earlier_maps = _sessions(run, backend)
             end = RunEnd(run.runner.output_filter, result_meta, occupancy, graph, scans, sessions, earlier_maps)

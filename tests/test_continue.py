@@ -51,7 +51,8 @@ def runs(tmp_path_factory):
     outputs = {}
     for name, args in (
         ("a", ["process", str(tmp / "a.mcap"), str(tmp / "a-map.mcap"), "--no-rrd"]),
-        ("b", ["process", str(tmp / "b.mcap"), str(tmp / "b-map.mcap"), "--continue", str(tmp / "a-map.mcap")]),
+        ("b", ["process", str(tmp / "b.mcap"), str(tmp / "b-map.mcap"), "--occupancy", "--continue",
+               str(tmp / "a-map.mcap")]),
         ("c", ["process", str(tmp / "c.mcap"), str(tmp / "c-map.mcap"), "--no-rrd", "--continue",
                str(tmp / "b-map.mcap")]),
     ):  # fmt: skip
@@ -114,10 +115,11 @@ def test_the_result_holds_every_run_and_a_third_continues_the_second(runs):
 
 def test_the_continued_maps_grid_keeps_the_earlier_runs_walls(runs):
     """Points of the first run's map that the second run left as they were are saved at their own p, not at
-    the cap it read them with, and stand as walls in the second result's occupancy grid."""
+    the cap it read them with, and stand as walls in the second result's occupancy grid; the free space
+    the first run saw is free in it, in the grid `--occupancy` stores and in one built from the result."""
     from gslam.config import FilterConfig
-    from pipelines.outputs.navigation_map import OCCUPIED_THRESH, grid_from_result
-    from pipelines.outputs.occupancy_grid import OCCUPIED
+    from pipelines.outputs.navigation_map import OCCUPIED_THRESH, grid_from_result, stored_grid
+    from pipelines.outputs.occupancy_grid import FREE, OCCUPIED
 
     tmp, _, _, _ = runs
     a, b = read_result(tmp / "a-map.mcap"), read_result(tmp / "b-map.mcap")
@@ -132,8 +134,15 @@ def test_the_continued_maps_grid_keeps_the_earlier_runs_walls(runs):
     same = p_b == p_a  # not seen again (the others were: updated from the cap by the second run's returns)
     walls = same & (p_a >= OCCUPIED_THRESH)
     assert walls.sum() > 50, (len(kept_a), same.sum(), walls.sum())
-    grid = grid_from_result(tmp / "b-map.mcap")
-    assert np.mean(grid.state_at(b.map_xy[in_b[walls]]) == OCCUPIED) > 0.99
+    # Where only the first run drove (3 m or more from the second's path) its scans' free space is in the
+    # second result's grid too (cast from its graph nodes' returns): all of it free, not 29 % as before.
+    only_a = a.trajectory[np.hypot(*(a.trajectory[:, None, :2] - b.trajectory[None, :, :2]).T).min(axis=0) > 3.0]
+    assert len(only_a) > 50, len(only_a)
+    stored = stored_grid(tmp / "b-map.mcap")  # `gslam process --occupancy`'s, built at the run's end
+    rebuilt = grid_from_result(tmp / "b-map.mcap", resolution_m=0.1)  # `gslam export`'s, from the result
+    for grid in (stored, rebuilt):
+        assert np.mean(grid.state_at(b.map_xy[in_b[walls]]) == OCCUPIED) > 0.99
+        assert np.mean(grid.state_at(only_a[:, :2]) == FREE) > 0.95
 
 
 def test_localise_in_a_continued_map(runs):

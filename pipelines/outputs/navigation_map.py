@@ -5,7 +5,7 @@ foxglove.Grid of /map/occupancy.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -40,13 +40,22 @@ def build_grid(
     bearing_offset_rad: float = 0.0,
     support_m: float = SUPPORT_M,
     progress: Callable[[int, int], None] | None = None,
+    earlier: Sequence[tuple[np.ndarray, np.ndarray]] = (),
 ) -> OccupancyGrid:
     """The grid of a run: `laser_poses[j]` is where the input's scan number `scan_indices[j]` (increasing)
     was taken; `map_p` are occupancy probabilities of the map points `map_xy`. `progress(done, total)`
-    counts the input's scans read (a long log takes seconds per thousand scans)."""
+    counts the input's scans read (a long log takes seconds per thousand scans). `earlier`: the scans of
+    the earlier runs a continued result holds (`pipelines.run.continuation.earlier_node_scans`), each a
+    laser pose (3,) and its returns (K, 2) in that laser's frame, cast as the input's are: the free space
+    of places only an earlier run saw."""
     scan_indices = np.asarray(scan_indices, dtype=np.int64)
-    spec = GridSpec.around(np.vstack([np.asarray(map_xy).reshape(-1, 2), laser_poses[:, :2]]), resolution_m)
+    origins = np.vstack([laser_poses[:, :2], *(np.asarray(pose)[None, :2] for pose, _ in earlier)])
+    spec = GridSpec.around(np.vstack([np.asarray(map_xy).reshape(-1, 2), origins]), resolution_m)
     casts = ScanCaster(spec)
+    for pose, returns in earlier:
+        returns = np.asarray(returns, dtype=float).reshape(-1, 2)
+        casts.add_scan(np.asarray(pose, dtype=float), np.hypot(returns[:, 0], returns[:, 1]),
+                       np.arctan2(returns[:, 1], returns[:, 0]))  # fmt: skip
     g = log.geometry
     bearings = g.bearings_rad + bearing_offset_rad
     for j, ev in enumerate(log.scans_at(scan_indices, progress)):
@@ -116,7 +125,12 @@ def grid_from_result(
     config = meta.get("config", {})
     p = occupancy_probabilities(res.map_p, config.get("filter", {}).get("map_update", "binary"))
     offset = float(config.get("laser_yaw_offset_rad", 0))
-    return build_grid(log, np.asarray(scan_indices), laser, res.map_xy, p, resolution_m, offset, progress=progress)
+    from pipelines.run.continuation import earlier_node_scans
+
+    earlier = earlier_node_scans(result, log.mount)
+    return build_grid(
+        log, np.asarray(scan_indices), laser, res.map_xy, p, resolution_m, offset, progress=progress, earlier=earlier
+    )
 
 
 def pgm_bytes(grid: OccupancyGrid, comment: str = "gslam occupancy grid") -> bytes:

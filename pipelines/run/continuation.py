@@ -23,6 +23,7 @@ import numpy as np
 
 from gslam.backend import BackEndSettings, PoseGraphBackEnd, PreviousGraph
 from gslam.motion import odometry_delta, wrap_angle_scalar
+from gslam.scan import transform_points
 from gslam.se2 import compose, inverse
 from mcaplog import channels as ch
 from mcaplog.mcapio import McapInput, read_error
@@ -169,6 +170,32 @@ def _read_graph(prev: PreviousRun, graph: dict, scans: object, path: Path) -> No
     prev.node_sessions = sessions
     prev.closures = [(int(i), int(j)) for i, j in graph.get("closures", [])]
     prev.closure_scores = [float(s) for s in graph.get("closure_scores", [])]
+
+
+def earlier_node_scans(path: Path, mount: LaserMount | None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The scans of the earlier mapping runs that the continued result at `path` holds: its pose graph's
+    nodes of those runs, each as its laser's final pose (3,) on `mount` and its returns (K, 2, the back
+    end's own: within 20 m, one per 0.1 m voxel) in that laser's frame. Empty for a result that continues
+    nothing, or one whose run could not find itself in the earlier map (their nodes are not kept)."""
+    parts: dict[str, object] = {}
+    try:
+        for msg in McapInput(Path(path)).messages([ch.SLAM_SESSIONS, ch.SLAM_GRAPH, ch.SLAM_GRAPH_SCANS]):
+            parts[msg.topic] = msg.value
+    except InputError:
+        raise
+    except Exception as e:
+        raise InputError(f"{path}: cannot read the result ({read_error(e)})") from None
+    own = len(_sessions(parts.get(ch.SLAM_SESSIONS), Path(path)))  # the result's own run's number
+    graph, scans = parts.get(ch.SLAM_GRAPH), parts.get(ch.SLAM_GRAPH_SCANS)
+    if own == 0 or not isinstance(graph, dict) or not graph.get("x_m") or scans is None:
+        return []
+    prev = PreviousRun(Path(path), np.empty((0, 2)), np.empty(0), None)  # (its graph and scans only)
+    _read_graph(prev, graph, scans, Path(path))
+    lasers = laser_poses(mount, prev.node_poses)
+    return [
+        (lasers[k], transform_points(inverse(lasers[k]), prev.node_points[k]))
+        for k in np.flatnonzero(prev.node_sessions < own)
+    ]
 
 
 @dataclass
