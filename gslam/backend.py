@@ -27,12 +27,14 @@ from __future__ import annotations
 import math
 import time
 from collections import OrderedDict
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 import numpy as np
 
-from gslam.loopclosure import ClosureSettings, Submap, match_scan, voxel_filter
+from gslam.loopclosure import ClosureSettings, Match, Submap, match_scan, voxel_filter
 from gslam.motion import wrap_angle
 from gslam.posegraph import CLOSURE, PREVIOUS, SEQUENTIAL, Edge, optimise_robust, residuals
 from gslam.scan import transform_points
@@ -352,14 +354,16 @@ class PoseGraphBackEnd:
         ):
             self.optimise()
 
-    def locate(self, scans: list[np.ndarray]) -> list[tuple[np.ndarray, float] | None]:
+    def locate(self, scans: list[np.ndarray], workers: int = 1) -> list[tuple[np.ndarray, float] | None]:
         """Where each scan (its returns (K, 2) in the sensor frame) stands in the graph's map when nothing is
         known of its pose, as Cartographer finds a new trajectory in an old map: searched by branch and bound
         over every heading and the whole map, region by region (`_regions`: the returns of every node within
         twice `locate_region_m` of a point of a grid of that spacing, so that a scan's view is in the field
         whole, not a submap's few metres of it). Per scan, (its pose in the map frame, its score), or None where no
         region holds a match that scores `min_score`, or a match as good stands elsewhere (`ambiguity_m`,
-        `ambiguity_ratio`: a look-alike place, in the same region or another)."""
+        `ambiguity_ratio`: a look-alike place, in the same region or another). `workers` threads search
+        regions at once (the search is compiled code that runs without the GIL), each building its own
+        region's field, so at most that many fields are held; the answer does not depend on them."""
         s = self.settings
         clouds = [self._kept_returns(points_xy) for points_xy in scans]
         found: list[list[tuple[np.ndarray, float, bool]]] = [[] for _ in scans]
@@ -369,14 +373,25 @@ class PoseGraphBackEnd:
             window_rad=math.pi,
             heading_range_m=s.locate_heading_range_m,
         )
-        for centre, region in self._regions():
+
+        def search(region: tuple[np.ndarray, np.ndarray]) -> list[tuple[int, Match]]:
+            centre, near = region
+            field = self._region_field(near)
+            if field is None:
+                return []
             guess = np.array([centre[0], centre[1], 0.0])
-            for k, pts in enumerate(clouds):
-                if len(pts) < 10:
-                    continue
-                match = match_scan(region, pts, guess, settings)
-                if match is not None:
-                    found[k].append((match.pose, match.score, match.ambiguous))
+            matches = ((k, match_scan(field, pts, guess, settings)) for k, pts in enumerate(clouds) if len(pts) >= 10)
+            return [(k, match) for k, match in matches if match is not None]
+
+        regions = list(self._regions())
+        if workers > 1 and len(regions) > 1:
+            with ThreadPoolExecutor(min(workers, len(regions)), thread_name_prefix="gslam-locate") as pool:
+                per_region = list(pool.map(search, regions))  # in the regions' order, whichever thread ran them
+        else:
+            per_region = [search(region) for region in regions]
+        for matches in per_region:
+            for k, match in matches:
+                found[k].append((match.pose, match.score, match.ambiguous))
         return [self._unambiguous(f) for f in found]
 
     def _unambiguous(self, found: list[tuple[np.ndarray, float, bool]]) -> tuple[np.ndarray, float] | None:
@@ -395,10 +410,10 @@ class PoseGraphBackEnd:
                 return None  # the same scan fits another place nearly as well
         return pose, score
 
-    def _regions(self):
-        """(centre (2,), field) of each region of the map `locate` searches: the points of a grid of spacing
+    def _regions(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        """(centre (2,), nodes) of each region of the map `locate` searches: the points of a grid of spacing
         `locate_region_m` over the nodes' positions that have a node within that distance, each with the
-        field of the returns (map frame) of the nodes within twice it. Built one at a time."""
+        nodes within twice it, whose returns make its field (`_region_field`)."""
         s = self.settings
         est = np.asarray(self.estimate).reshape(-1, 3)
         if len(est) == 0:
@@ -409,12 +424,14 @@ class PoseGraphBackEnd:
         for x in np.arange(lo[0], hi[0] + step, step):
             for y in np.arange(lo[1], hi[1] + step, step):
                 d = np.hypot(est[:, 0] - x, est[:, 1] - y)
-                if not np.any(d <= step):
-                    continue
-                near = np.flatnonzero(d <= 2 * step)
-                pts = np.concatenate([transform_points(est[k], self.points[k]) for k in near])
-                if len(pts):
-                    yield np.array([x, y]), Submap.build(pts, s.closure)
+                if np.any(d <= step):
+                    yield np.array([x, y]), np.flatnonzero(d <= 2 * step)
+
+    def _region_field(self, nodes: np.ndarray) -> Submap | None:
+        """The field of a region of `locate`: the returns (map frame) of its `nodes`; None if they hold none."""
+        est = np.asarray(self.estimate).reshape(-1, 3)
+        pts = np.concatenate([transform_points(est[k], self.points[k]) for k in nodes])
+        return Submap.build(pts, self.settings.closure) if len(pts) else None
 
     def _where(self, c: ClosureRecord) -> np.ndarray:
         """Where closure `c` puts its node, by the current estimate of its anchor."""

@@ -251,7 +251,7 @@ def _continue(
     if continuation.initial_pose is None and notice is not None:
         notice(f"finding the run in {continuation.previous}'s map (its first scans searched for over the whole map)")
     pose = None if continuation.initial_pose is None else np.asarray(continuation.initial_pose, dtype=float)
-    start = find_start(previous, log, pose)
+    start = find_start(previous, log, pose, workers=max(1, cfg.threads or os.cpu_count() or 1))
     if start.pose is None:
         lost = (
             f"{log.path}: could not find itself in the map of {continuation.previous} over its first "

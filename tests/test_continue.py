@@ -239,6 +239,19 @@ def test_a_run_that_cannot_find_itself_maps_a_new_trajectory_beside_the_old_map(
     assert read_result(on).metadata["continuation"]["start"]["how"] == "found"
 
 
+def test_the_start_search_gives_the_same_start_on_any_number_of_threads(runs):
+    """`find_start`'s regions searched by one thread or three: the same start, bit for bit, where it is."""
+    from pipelines.run.continuation import find_start, load_previous
+    from pipelines.run.input_log import InputLog
+
+    tmp, sim, _, (b0, _) = runs
+    prev = load_previous(tmp / "a-map.mcap")
+    one, three = (find_start(prev, InputLog(tmp / "b.mcap"), None, workers=w) for w in (1, 3))
+    assert one.how == three.how == "found" and one.scans_searched == three.scans_searched
+    np.testing.assert_array_equal(one.pose, three.pose)
+    assert np.hypot(*(one.pose[:2] - sim.truth[b0, :2])) < 0.15
+
+
 def test_the_start_is_carried_back_to_the_first_scan():
     """`find_start`'s last step: the pose found at a later scan, moved back by the odometry between them."""
     found = np.array([2.0, 1.0, 0.5])

@@ -244,12 +244,13 @@ def find_start(
     prev: PreviousRun,
     log: InputLog,
     initial_pose: np.ndarray | None,
+    workers: int = 1,
 ) -> Start:
     """Where the new run's first scan stands in the old map (the base's pose): the `initial_pose` given, or
     where two consecutive scans of its first `SEARCH_TRAVEL_M` of travel (one each `CANDIDATE_TRAVEL_M`) are
     found in the old map, each searched over the whole map and every heading (`PoseGraphBackEnd.locate`),
     the two agreeing with the odometry between them; the first of them carried back to the first scan by the
-    odometry."""
+    odometry. `workers`: threads searching the map's regions at once (`PoseGraphBackEnd.locate`)."""
     if initial_pose is not None:
         return Start(np.asarray(initial_pose, dtype=float), "initial pose")
     if log.motion_model != "odometry":
@@ -277,7 +278,7 @@ def find_start(
     def search() -> Start | None:
         """The candidates found in the old map, in order; the start once two consecutive ones agree."""
         nonlocal last_hit, searched
-        hits = backend.locate([ends for _, _, _, ends in candidates])
+        hits = backend.locate([ends for _, _, _, ends in candidates], workers)
         for (index, at_m, odom, _), hit in zip(candidates, hits, strict=True):
             searched += 1
             if hit is None:
