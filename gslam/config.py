@@ -309,7 +309,7 @@ class FilterConfig:
     sighting, while a saved point held at 1 - 1e-6 would never be outscored; and free space seen three
     times takes an old point below matching. The earlier map carries its run's own pose errors, which the
     new run would otherwise inherit where it revisits (docs/CHOICES.md, "Maps that go on"). A point the
-    run leaves as it was is saved again at its own p (`GSlamFilter.map_points`). 1: p as saved."""
+    run leaves as it was is saved again at its own p (`GSlamFilter.restore_saved_p`). 1: p as saved."""
     initial_sigma_xy_m: float = 0.0
     """Spread [m, sd] of the particles' initial positions (0: all start at the origin or the GPS fit)."""
     initial_sigma_phi_rad: float = 0.0

@@ -196,22 +196,32 @@ class GSlamFilter:
         by_key = np.argsort(point_keys)
         self._seeded = (point_keys[by_key], seeded.p[capped][by_key], saved[first][capped][by_key].astype(MAP_DTYPE))
 
-    def _with_saved_p(self, xy: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The map with each seeded point that this run never updated (the same position and the capped p,
-        bit for bit) back at the p it was saved with: the cap (`seed_map`) is for this run's matching and
-        updates, not a belief of its own, so a place only an earlier run saw keeps its walls in the saved
-        map and the occupancy grid (whose threshold, 0.65, is above the cap)."""
-        if self._seeded is None or len(self._seeded[0]) == 0 or len(xy) == 0:
-            return xy, p
+    def restore_saved_p(self) -> int:
+        """At the run's end, before its map is saved: put every seeded point that this run never updated (the
+        same position and the capped p, bit for bit) back at the p it was saved with, in the best particle's
+        map. The cap (`seed_map`) is for this run's matching and updates, not a belief of its own: a place
+        only an earlier run saw keeps its walls in the saved map and the occupancy grid (whose threshold,
+        0.65, is above the cap). Done once, not at every `map_points` (the run's map snapshots show the map
+        as the filter holds it). Returns how many points it put back."""
+        if self._seeded is None or len(self._seeded[0]) == 0:
+            return 0
         keys, capped_p, saved_p = self._seeded
-        point_keys = _point_keys(xy)
+        self._seeded = None
+        best = self.best_particle()
+        m = self.maps[best]
+        if len(m) == 0:
+            return 0
+        point_keys = _point_keys(m.xy)
         at = np.minimum(np.searchsorted(keys, point_keys), len(keys) - 1)
-        untouched = (keys[at] == point_keys) & (np.asarray(p) == capped_p[at])
+        untouched = (keys[at] == point_keys) & (m.p == capped_p[at])
         if not untouched.any():
-            return xy, p
-        p = np.array(p, copy=True)
+            return 0
+        p = np.array(m.p, copy=True)
         p[untouched] = saved_p[at[untouched]]
-        return xy, p
+        self.maps = list(self.maps)
+        self.maps[best] = PointMap(np.array(m.xy, copy=True), p)
+        self._layout = None  # the best particle's map is no longer a slice of the buffer
+        return int(untouched.sum())
 
     def close_loops(
         self,
@@ -254,7 +264,7 @@ class GSlamFilter:
         if self._corrected_map is not None and self._corrected_map[0] == particle:
             return self._corrected_map[1], self._corrected_map[2]
         m = self.maps[particle]
-        return self._with_saved_p(m.xy, m.p)
+        return m.xy, m.p
 
     def _due(self) -> bool:
         """Open point 7: update every scan, or (travel) once the motion since the last update, summed

@@ -500,6 +500,8 @@ def _finish(run: _OpenRun, times: _StepTimes, notice: Callable[[str], None] | No
         # A signal from here on waits for the outputs to be finished (a second one aborts them).
         with interrupts.deferred():
             live = run.runner.stop_live()  # the live back end's record (`loop_closure_live`), or None
+            if run.previous is not None and run.connected:  # the map it was seeded with: saved at its own p
+                run.runner.filter.restore_saved_p()
             placement = _place_every_scan(run, times, notice)
             closure, graph, backend = _close_loops(run, times, notice)
             if closure is not None:

@@ -294,9 +294,9 @@ def test_a_continued_map_yields_to_the_new_runs_returns():
 
 
 def test_places_only_an_earlier_run_saw_keep_their_saved_p():
-    """The cap is for the continued run's matching and updates: a wall it never sees (behind its laser)
-    comes out of `map_points` at the p it was saved with, bit for bit, so the saved map and the occupancy
-    grid (threshold 0.65, above the cap) keep it; the wall it sees is its own again."""
+    """The cap is for the continued run's matching and updates: at the run's end (`restore_saved_p`) a wall
+    it never saw (behind its laser) is put back at the p it was saved with, bit for bit, so the saved map and
+    the occupancy grid (threshold 0.65, above the cap) keep it; the wall it saw is its own again."""
     from gslam.config import FilterConfig
     from gslam.filter import GSlamFilter
     from gslam.scan import Scan, ScanGeometry
@@ -313,10 +313,12 @@ def test_places_only_an_earlier_run_saw_keep_their_saved_p():
     for k in range(3):
         flt.step(Scan(float(k), ranges, geom))
     xy, p = flt.map_points(flt.best_particle())
+    assert p[xy[:, 0] < 0].max() <= np.float32(cfg.continue_max_p)  # as the filter holds it while it runs
+    assert flt.restore_saved_p() == len(y) and flt.restore_saved_p() == 0  # at the run's end, once
+    xy, p = flt.map_points(flt.best_particle())
     old = xy[:, 0] < 0
     order = np.argsort(xy[old, 1])
     np.testing.assert_array_equal(xy[old][order], behind.astype(np.float32))
     np.testing.assert_array_equal(p[old][order], saved_p.astype(np.float32))
-    assert flt.maps[flt.best_particle()].p[flt.maps[flt.best_particle()].xy[:, 0] < 0].max() <= cfg.continue_max_p
     seen = (xy[:, 0] > 4.9) & (np.abs(xy[:, 1]) < 3.0)
     assert seen.sum() > 40 and not np.isin(xy[seen, 0], np.float32(5.05)).any()  # drawn by this run
