@@ -230,6 +230,11 @@ class PoseGraphBackEnd:
         if k + 1 - first >= s.submap_nodes:
             self.submaps.append((first, k + 1))
 
+    @property
+    def run_start(self) -> int:
+        """The first node of this mapping run: the nodes before it are the earlier runs' (`add_previous`)."""
+        return self._session_start
+
     def begin_session(self) -> None:
         """The nodes added from here are a new mapping run's, continuing the graph of the earlier ones
         (`add_previous`): their first is tied to the last node before loosely (`session_sigma_xy_m`), and they

@@ -98,8 +98,8 @@ class GSlamFilter:
         """Per step: the noise-free motion from the scan before (in its frame), whatever the filter did."""
         self._corrected_map: tuple[int, np.ndarray, np.ndarray] | None = None
         """(particle, points, p): the best particle's map moved with the pose graph (`close_loops`)."""
-        self._seeded: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        """(position keys, capped p, saved p) of the points `seed_map` capped, sorted by key."""
+        self._seeded: tuple[np.ndarray, np.ndarray] | None = None
+        """(position keys, saved p) of the points `seed_map` capped (to `continue_max_p`), sorted by key."""
         self.placed: tuple[np.ndarray, np.ndarray] | None = None
         """(times, poses) of the best particle's trajectory with every scan placed by its final map
         (`place_every_scan`); `best_trajectory()` gives it once set."""
@@ -191,10 +191,11 @@ class GSlamFilter:
         self.maps = [seeded] * self.cfg.particles
         self._layout = None
         self._points_total = len(seeded) * self.cfg.particles
-        capped = saved[first].astype(MAP_DTYPE) > seeded.p
+        saved = saved[first].astype(MAP_DTYPE)
+        capped = saved > seeded.p
         point_keys = _point_keys(seeded.xy[capped])
         by_key = np.argsort(point_keys)
-        self._seeded = (point_keys[by_key], seeded.p[capped][by_key], saved[first][capped][by_key].astype(MAP_DTYPE))
+        self._seeded = (point_keys[by_key], saved[capped][by_key])
 
     def restore_saved_p(self) -> int:
         """At the run's end, before its map is saved: put every seeded point that this run never updated (the
@@ -205,7 +206,7 @@ class GSlamFilter:
         as the filter holds it). Returns how many points it put back."""
         if self._seeded is None or len(self._seeded[0]) == 0:
             return 0
-        keys, capped_p, saved_p = self._seeded
+        keys, saved_p = self._seeded
         self._seeded = None
         best = self.best_particle()
         m = self.maps[best]
@@ -213,7 +214,7 @@ class GSlamFilter:
             return 0
         point_keys = _point_keys(m.xy)
         at = np.minimum(np.searchsorted(keys, point_keys), len(keys) - 1)
-        untouched = (keys[at] == point_keys) & (m.p == capped_p[at])
+        untouched = (keys[at] == point_keys) & (m.p == MAP_DTYPE(self.cfg.continue_max_p))
         if not untouched.any():
             return 0
         p = np.array(m.p, copy=True)

@@ -80,10 +80,7 @@ def _occupancy(
     times, laser = flt.best_trajectory()
     xy, p = flt.map_points(flt.best_particle())
     p = occupancy_probabilities(p, getattr(cfg.filter, "map_update", "binary"))
-    earlier = []
-    if backend is not None and len(backend.session):
-        own = max(backend.session)
-        earlier = [(backend.estimate[k], backend.points[k]) for k, s in enumerate(backend.session) if s < own]
+    earlier = [] if backend is None else [(backend.estimate[k], backend.points[k]) for k in range(backend.run_start)]
     grid = build_grid(
         log, np.asarray(scan_indices), laser, xy, p, cfg.occupancy_resolution_m, cfg.laser_yaw_offset_rad,
         earlier=earlier,
@@ -331,9 +328,7 @@ def _run_steps(
     except (KeyboardInterrupt, Exception) as e:  # SIGINT, SIGTERM (interrupts.Stopped) or an error
         interrupts.hold()
         interrupts.acknowledge()
-        signum = interrupts.received()
-        if not isinstance(e, KeyboardInterrupt) and signum is not None:
-            e = interrupts.Stopped(signum)  # raised inside an import or a compiled kernel, it came back wrapped
+        e = interrupts.as_stop(e)
         if isinstance(e, KeyboardInterrupt) and len(times.filter_ms) >= total:
             times.after_last_scan = e  # every scan was processed: the run is whole, finish it, then stop
         else:

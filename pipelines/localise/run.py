@@ -470,9 +470,7 @@ def _run_scans(
     except (KeyboardInterrupt, Exception) as e:  # SIGINT, SIGTERM (interrupts.Stopped) or an error
         interrupts.hold()
         interrupts.acknowledge()
-        signum = interrupts.received()
-        if not isinstance(e, KeyboardInterrupt) and signum is not None:
-            e = interrupts.Stopped(signum)  # raised inside a compiled kernel's call, it came back as a SystemError
+        e = interrupts.as_stop(e)
         if not isinstance(e, KeyboardInterrupt):
             scans.error = e
         elif scans.writing:  # a second signal that aborts: the scan's messages may be torn

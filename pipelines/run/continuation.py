@@ -179,19 +179,19 @@ def earlier_node_scans(path: Path, mount: LaserMount | None) -> list[tuple[np.nd
     nothing, or one whose run could not find itself in the earlier map (their nodes are not kept)."""
     parts: dict[str, object] = {}
     try:
-        for msg in McapInput(Path(path)).messages([ch.SLAM_SESSIONS, ch.SLAM_GRAPH, ch.SLAM_GRAPH_SCANS]):
+        for msg in McapInput(Path(path)).messages([ch.SLAM_GRAPH, ch.SLAM_GRAPH_SCANS]):
             parts[msg.topic] = msg.value
     except InputError:
         raise
     except Exception as e:
         raise InputError(f"{path}: cannot read the result ({read_error(e)})") from None
-    own = len(_sessions(parts.get(ch.SLAM_SESSIONS), Path(path)))  # the result's own run's number
     graph, scans = parts.get(ch.SLAM_GRAPH), parts.get(ch.SLAM_GRAPH_SCANS)
-    if own == 0 or not isinstance(graph, dict) or not graph.get("x_m") or scans is None:
+    if not isinstance(graph, dict) or not graph.get("x_m") or scans is None:
         return []
     prev = PreviousRun(Path(path), np.empty((0, 2)), np.empty(0), None)  # (its graph and scans only)
     _read_graph(prev, graph, scans, Path(path))
     lasers = laser_poses(mount, prev.node_poses)
+    own = prev.node_sessions.max()  # the result's own run: the graph's last (its nodes come after the earlier ones)
     return [
         (lasers[k], transform_points(inverse(lasers[k]), prev.node_points[k]))
         for k in np.flatnonzero(prev.node_sessions < own)

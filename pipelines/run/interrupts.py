@@ -145,6 +145,16 @@ def behind(e: BaseException) -> KeyboardInterrupt | None:
     return None
 
 
+def as_stop(e: BaseException) -> BaseException:
+    """What ended a run's loop: `e`, or the signal's `Stopped` where a signal has come and `e` is some other
+    error (raised inside an import or a compiled kernel's call, the handler's exception comes back wrapped,
+    e.g. as a RuntimeError or SystemError)."""
+    signum = received()
+    if not isinstance(e, KeyboardInterrupt) and signum is not None:
+        return Stopped(signum)
+    return e
+
+
 def install() -> None:
     """Handle SIGINT and SIGTERM from now on (in the main thread only): the command line's first act."""
     if threading.current_thread() is threading.main_thread():
