@@ -10,12 +10,20 @@ from pipelines.outputs import rerun_screenshot
 WHY_NOT = rerun_screenshot.available()
 
 
+def rgb(png) -> np.ndarray:
+    """A screenshot (a path or PNG bytes) as an int array of rows x columns x RGB."""
+    import io
+
+    from PIL import Image
+
+    source = io.BytesIO(png) if isinstance(png, bytes) else png
+    return np.asarray(Image.open(source).convert("RGB")).astype(int)
+
+
 @pytest.mark.skipif(WHY_NOT is not None, reason=f"no browser check here: {WHY_NOT}")
 def test_the_map_is_drawn_north_up_in_the_web_viewer(tmp_path):
     """A map whose probable points lie north of the origin (y = +5 m) and a GPS track south of it
     (y = -5 m): on the screen the map's red pixels are above the track's green ones, as on the plots."""
-    from PIL import Image
-
     from pipelines.outputs.rerun_recorder import Recorder
 
     rrd = tmp_path / "north.rrd"
@@ -25,11 +33,20 @@ def test_the_map_is_drawn_north_up_in_the_web_viewer(tmp_path):
     xy = np.column_stack([np.r_[x, x], np.r_[np.full(400, 5.0), np.full(400, 5.3)]])
     rec.map(0, 0.0, xy, np.ones(len(xy)))
     rec.finish({})
-    shot = rerun_screenshot.screenshot(rrd, tmp_path / "north.png")
-    pix = np.asarray(Image.open(shot).convert("RGB")).astype(int)
-    r, g, b = pix[..., 0], pix[..., 1], pix[..., 2]
-    red = np.argwhere((r > 170) & (g < 90) & (b < 90))  # the map's high-probability colour
-    green = np.argwhere((g > 150) & (r < 110) & (b < 110))  # the GPS track
+
+    def red_and_green(png) -> tuple[np.ndarray, np.ndarray]:
+        pix = rgb(png)
+        r, g, b = pix[..., 0], pix[..., 1], pix[..., 2]
+        red = np.argwhere((r > 170) & (g < 90) & (b < 90))  # the map's high-probability colour
+        green = np.argwhere((g > 150) & (r < 110) & (b < 110))  # the GPS track
+        return red, green
+
+    def drawn(png: bytes) -> bool:
+        red, green = red_and_green(png)
+        return len(red) > 200 and len(green) > 100
+
+    shot = rerun_screenshot.screenshot(rrd, tmp_path / "north.png", ready=drawn)
+    red, green = red_and_green(shot)
     assert len(red) > 200 and len(green) > 100, (len(red), len(green))  # the map is drawn where it is
     assert red[:, 0].mean() < green[:, 0].mean() - 50  # rows grow downwards: north is up
 
@@ -43,7 +60,6 @@ def test_mid_timeline_the_path_and_the_plots_show_the_run_so_far(tmp_path):
     the cursor, a quarter of the plot's width. At the end both run the whole way. Left to the viewer's own
     time axis (a window of +-30 s around the cursor once the data span a minute) the plots showed a minute
     around the cursor, full width at any time, instead of the run so far."""
-    from PIL import Image
 
     from pipelines.outputs.rerun_recorder import SERIES, Recorder
 
@@ -58,7 +74,7 @@ def test_mid_timeline_the_path_and_the_plots_show_the_run_so_far(tmp_path):
     colour = np.array(SERIES["map_points"][1])
 
     def extents(png) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        full = np.asarray(Image.open(png).convert("RGB")).astype(int)
+        full = rgb(png)
         pix = full[70:670, 200:1025]  # the map view
         r, g, b = pix[..., 0], pix[..., 1], pix[..., 2]
         gold = np.argwhere((r > 200) & (g > 170) & (b < 120))[:, 1]
@@ -67,7 +83,12 @@ def test_mid_timeline_the_path_and_the_plots_show_the_run_so_far(tmp_path):
         line = np.argwhere(np.abs(full[:, 1260:] - colour).max(axis=2) < 30)[:, 1]  # the plots, right of the map
         return gold, white, green, line
 
-    end_png, mid_png = rerun_screenshot.screenshots(rrd, [(tmp_path / "end.png", None), (tmp_path / "mid.png", 30.0)])
+    def drawn(png: bytes) -> bool:  # (at the end the robot's arrow is hidden: the page is white while it loads)
+        gold, _, green, line = extents(png)
+        return len(gold) > 50 and len(green) > 100 and len(line) > 30
+
+    shots = [(tmp_path / "end.png", None), (tmp_path / "mid.png", 30.0)]
+    end_png, mid_png = rerun_screenshot.screenshots(rrd, shots, ready=drawn)
     gold, white, green, line = extents(mid_png)
     assert len(gold) > 50 and len(white) > 20 and len(green) > 100, (len(gold), len(white), len(green))
     span = green.max() - green.min()  # the GPS line, x = -8 .. 8 m

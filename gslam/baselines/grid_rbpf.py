@@ -70,8 +70,10 @@ class GridSlam:
 
     def cell_of(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         ij = np.floor((xy - self.origin) / self.cfg.cell_m).astype(np.int64)
-        inside = (ij >= 0).all(axis=1) & (ij < self.cfg.side).all(axis=1)
-        return ij[:, 0], ij[:, 1], inside
+        i, j = ij[:, 0], ij[:, 1]
+        side = self.cfg.side
+        inside = (i >= 0) & (j >= 0) & (i < side) & (j < side)  # (column by column: `all(axis=1)` is slow)
+        return i, j, inside
 
     def occupancy(self, particle: int) -> tuple[np.ndarray, np.ndarray, float]:
         """(occupancy probability grid (side, side) indexed [i along x, j along y], origin xy, cell size)."""
@@ -103,7 +105,9 @@ class GridSlam:
             self.cfg.weight_tempering * np.log(self.cfg.weight_floor + (1 - self.cfg.weight_floor) * score).sum()
         )
 
-    def _integrate(self, i: int, scan: Scan) -> None:
+    def _ray_points(self, scan: Scan) -> tuple[np.ndarray, np.ndarray]:
+        """(free, end): the points every half cell along each beam up to its return or `max_ray_m`, and the
+        returns within it, in the sensor frame (the same for every particle)."""
         cfg = self.cfg
         r = np.minimum(scan.occlusion_ranges_m, cfg.max_ray_m)
         hit = scan.returns & (scan.ranges_m <= cfg.max_ray_m)
@@ -115,6 +119,10 @@ class GridSlam:
         dist = offs * step
         free_pts = np.column_stack([dist * np.cos(b[beam]), dist * np.sin(b[beam])])
         end_pts = np.column_stack([r[hit] * np.cos(b[hit]), r[hit] * np.sin(b[hit])])
+        return free_pts, end_pts
+
+    def _integrate(self, i: int, free_pts: np.ndarray, end_pts: np.ndarray) -> None:
+        cfg = self.cfg
         g = self.grids[i].copy()  # copy-on-write
         fi, fj, fin = self.cell_of(transform_points(self.poses[i], free_pts))
         free = np.zeros_like(g, dtype=bool)
@@ -147,8 +155,9 @@ class GridSlam:
                 if id(g) not in fields:
                     fields[id(g)] = self._distance_field(g)
                 log_like[i] = self._log_likelihood(i, pts, fields[id(g)])
+        free_pts, end_pts = self._ray_points(scan)
         for i in range(cfg.particles):  # per particle: vectorised over beams and ray samples
-            self._integrate(i, scan)
+            self._integrate(i, free_pts, end_pts)
         self.weights, ess, parents = reweight_and_resample(self.weights, log_like, cfg.resample_threshold, self.rng)
         best = self.best_particle()
         result = StepResult(

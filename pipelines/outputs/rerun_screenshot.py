@@ -14,13 +14,17 @@ import shutil
 import subprocess
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from pipelines.outputs.rerun_viewer import free_port, rerun_binary, wait_for_port
 
 LOAD_WAIT_S = 30.0
-"""Seconds given to the viewer to load its WebAssembly and the recording (about 15 s on 2 cores)."""
+"""Seconds given to the viewer to load its WebAssembly and the recording (about 15 s on 2 cores); with a
+`ready` test, the most to wait for it."""
+
+POLL_S = 1.0
+"""Seconds between looks at the page while waiting for `ready`."""
 
 TIME_FIELD_XY = (363, 690)
 """The time panel's current-time field in rerun-sdk 0.41's web viewer at 1600 x 900 with our blueprint."""
@@ -47,13 +51,15 @@ def screenshot(
     size: tuple[int, int] = (1600, 900),
     wait_s: float = LOAD_WAIT_S,
     time_s: float | None = None,
+    ready: Callable[[bytes], bool] | None = None,
 ) -> Path:
     """Serve `rrd` with `rerun --web-viewer` on free ports, open it in headless Chromium, wait `wait_s`,
     and write the page as a PNG at `out`. `time_s`: first move the time cursor there on the `time`
     timeline (seconds since the log's start), as a user does, by typing it into the time panel's field
     (`TIME_FIELD_XY`: where the default blueprint puts it at the default size); else the cursor stays
-    where the viewer puts it, at the end of the recording."""
-    return screenshots(rrd, [(out, time_s)], size, wait_s)[0]
+    where the viewer puts it, at the end of the recording. `ready`: given the page as PNG bytes, whether
+    the recording is drawn; the wait then ends as soon as it is (looked at every `POLL_S`), or at `wait_s`."""
+    return screenshots(rrd, [(out, time_s)], size, wait_s, ready)[0]
 
 
 def screenshots(
@@ -61,6 +67,7 @@ def screenshots(
     shots: Sequence[tuple[Path, float | None]],
     size: tuple[int, int] = (1600, 900),
     wait_s: float = LOAD_WAIT_S,
+    ready: Callable[[bytes], bool] | None = None,
 ) -> list[Path]:
     """Several `screenshot`s of one recording, loaded once: `(out, time_s)` in order, each as there; a
     `time_s` of None (the cursor where the viewer put it, at the end) only before any cursor move."""
@@ -90,7 +97,7 @@ def screenshots(
             try:
                 page = browser.new_page(viewport={"width": size[0], "height": size[1]})
                 page.goto(url)
-                time.sleep(wait_s)
+                wait_until_drawn(page, wait_s, ready)
                 for out, time_s in shots:
                     if time_s is not None:
                         page.mouse.click(*TIME_FIELD_XY)  # (the viewer's UI is one canvas: no DOM to select)
@@ -106,6 +113,20 @@ def screenshots(
     finally:
         stop_group(server)
     return [Path(out) for out, _ in shots]
+
+
+def wait_until_drawn(page, wait_s: float, ready: Callable[[bytes], bool] | None) -> None:
+    """Wait `wait_s`, or with `ready` until the page passes it (then one more look's time, for the
+    frame being drawn to settle), whichever comes first."""
+    if ready is None:
+        time.sleep(wait_s)
+        return
+    deadline = time.monotonic() + wait_s
+    while time.monotonic() < deadline:
+        time.sleep(POLL_S)
+        if ready(page.screenshot()):
+            time.sleep(POLL_S)
+            return
 
 
 def stop_group(process: subprocess.Popen) -> None:
