@@ -40,6 +40,7 @@ from pipelines.run import interrupts
 from pipelines.run.input_log import InputLog
 from pipelines.run.mount import base_poses, laser_poses
 from pipelines.run.recorded_input import fingerprint
+from pipelines.run.runner import log_vehicle
 from pipelines.run.scans import scan_stream
 
 POSE, STATE, PARTICLES, MAP = POSE_TOPIC, STATE_TOPIC, PARTICLES_TOPIC, MAP_TOPIC
@@ -338,8 +339,6 @@ def localise(req: LocaliseRequest, progress: Callable[[int, int], None] | None =
     check_options(req.initial_pose, req.initial_sigma)
     saved = load_map(req.map_path)
     log = InputLog(req.input_path)
-    if log.motion_model != "odometry":
-        raise InputError(f"{req.input_path}: localisation needs odometry poses (this log has {log.motion_model})")
     mount = log.mount
     initial = None if req.initial_pose is None else laser_poses(mount, req.initial_pose)
     loc = MonteCarloLocaliser(saved.field, req.config, initial, req.initial_sigma)
@@ -425,7 +424,7 @@ def _run_scans(
     try:
         _open_outputs(req, saved, log, outputs)
         out, rrd = outputs.out, outputs.rrd
-        for index, t_s, odom_last, ends, stamp_s in scan_stream(log):
+        for index, t_s, odom_last, ends, stamp_s in scan_stream(log, log_vehicle(log)):
             interrupts.check()  # a signal whose exception was swallowed on its way (e.g. in a compiled kernel)
             if index < req.skip_scans:
                 odom_prev = odom_last

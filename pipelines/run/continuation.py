@@ -25,6 +25,7 @@ from gslam.backend import BackEndSettings, PoseGraphBackEnd, PreviousGraph
 from gslam.motion import odometry_delta, wrap_angle_scalar
 from gslam.scan import transform_points
 from gslam.se2 import compose, inverse
+from gslam.vehicle import AckermannVehicle
 from mcaplog import channels as ch
 from mcaplog.mcapio import McapInput, read_error
 from pipelines.errors import InputError
@@ -245,19 +246,19 @@ def find_start(
     log: InputLog,
     initial_pose: np.ndarray | None,
     workers: int = 1,
+    vehicle: AckermannVehicle | None = None,
+    laser_yaw_rad: float = 0.0,
 ) -> Start:
     """Where the new run's first scan stands in the old map (the base's pose): the `initial_pose` given, or
     where two consecutive scans of its first `SEARCH_TRAVEL_M` of travel (one each `CANDIDATE_TRAVEL_M`) are
     found in the old map, each searched over the whole map and every heading (`PoseGraphBackEnd.locate`),
     the two agreeing with the odometry between them; the first of them carried back to the first scan by the
-    odometry. `workers`: threads searching the map's regions at once (`PoseGraphBackEnd.locate`)."""
+    odometry. An Ackermann log's odometry is its controls dead-reckoned with its `vehicle`
+    (`pipelines.run.scans.scan_stream`); `laser_yaw_rad`: the laser's mounting yaw the run adds to every
+    bearing (`RunConfig.laser_yaw_offset_rad`), so that the scans are searched as the run saw the old ones.
+    `workers`: threads searching the map's regions at once (`PoseGraphBackEnd.locate`)."""
     if initial_pose is not None:
         return Start(np.asarray(initial_pose, dtype=float), "initial pose")
-    if log.motion_model != "odometry":
-        raise InputError(
-            f"{log.path}: finding the run in the old map needs odometry poses (this log has {log.motion_model}); "
-            "give --initial-pose X Y YAW"
-        )
     mount = log.mount
     graph = prev.graph(mount)
     if graph is None:
@@ -299,7 +300,11 @@ def find_start(
         candidates.clear()
         return None
 
-    for index, _, odom, ends, _ in scan_stream(log):
+    c, s = math.cos(laser_yaw_rad), math.sin(laser_yaw_rad)
+    turned = np.array([[c, s], [-s, c]])  # rows (x, y) @ turned: each turned by the yaw
+    for index, _, odom, ends, _ in scan_stream(log, vehicle):
+        if laser_yaw_rad:
+            ends = ends @ turned
         if odom0 is None:
             odom0 = odom
         else:

@@ -194,10 +194,14 @@ class InputLog:
         return np.column_stack([msgs[0].value["x_m"], msgs[0].value["y_m"]])
 
     def head_controls_and_gps(self, seconds: float) -> tuple[np.ndarray, np.ndarray]:
-        """Ackermann controls and GPS fixes of the first `seconds` of the log (for initialisation)."""
+        """Ackermann controls and GPS fixes of the first `seconds` of them (for initialisation): from the first
+        of either, not the log's first message (a log cut from a longer one keeps that one's once-written
+        messages, such as the surveyed landmarks, at its start)."""
         controls, gps = [], []
+        first = None
         for ev in converted(self.mcap, [ch.ODOM_ACKERMANN, ch.GPS], self._event):
-            if ev.t_s > self.start_s + seconds:
+            first = ev.t_s if first is None else first
+            if ev.t_s > first + seconds:
                 break
             if isinstance(ev, GpsEvent):
                 gps.append([ev.t_s, *ev.xy])

@@ -117,6 +117,14 @@ class Step:
     """The base's odometry pose at the scan (odometry logs; None for logs of controls)."""
 
 
+def log_vehicle(log: InputLog, preset: str | None = None) -> AckermannVehicle | None:
+    """An Ackermann log's vehicle: the `preset` named (`--vehicle`), else the one its metadata names (the Car
+    Park's by default); None for an odometry log."""
+    if log.motion_model != "ackermann":
+        return None
+    return vehicle_preset(preset or log.meta["vehicle"].get("preset", "carpark"))
+
+
 class SlamRunner:
     """Streams an `InputLog` through a `GSlamFilter`, one scan at a time."""
 
@@ -126,9 +134,7 @@ class SlamRunner:
         self.log = log
         self.cfg = cfg
         self.start = None if start is None else np.asarray(start, dtype=float)
-        self.vehicle: AckermannVehicle | None = None
-        if log.motion_model == "ackermann":
-            self.vehicle = vehicle_preset(cfg.vehicle or log.meta["vehicle"].get("preset", "carpark"))
+        self.vehicle = log_vehicle(log, cfg.vehicle)
         if cfg.vehicle is not None and self.vehicle is None:
             raise InputError(
                 f"{log.path}: vehicle {cfg.vehicle!r} given, but this log has {log.motion_model} poses, not an "
@@ -136,9 +142,11 @@ class SlamRunner:
             )
         self.initialised_from_gps = False
         """Whether the initial pose was fitted to GPS (the map is then in the GPS and survey frame)."""
-        self.initial_pose, self.t_init_s = self._initial_pose()
         if self.start is not None and self.vehicle is not None:
-            self.initial_pose = self.start
+            # the start is the first scan's pose (`--initial-pose`, `find_start`): no scan is left out before it
+            self.initial_pose, self.t_init_s = self.start, next(log.events(scans_only=True)).t_s
+        else:
+            self.initial_pose, self.t_init_s = self._initial_pose()
         self.min_range_m = cfg.filter.min_range_m if cfg.filter.min_range_m is not None else log.self_return_range_m
         self.filter = make_filter(
             cfg, np.zeros(3) if self.initial_pose is None else self.initial_pose, log.self_return_range_m

@@ -1,4 +1,5 @@
-"""An odometry log's scans as the localiser takes them: the odometry pose at each and its returns' end points."""
+"""A log's scans as the localiser and the start search take them: the robot's pose by its odometry (or, for an
+Ackermann log, by its controls) at each, and its returns' end points."""
 
 from __future__ import annotations
 
@@ -6,15 +7,28 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from gslam.motion import integrate_ackermann
 from gslam.scan import Scan
+from gslam.vehicle import AckermannVehicle
 from pipelines.errors import InputError
-from pipelines.run.input_log import InputLog, OdomEvent, ScanEvent
+from pipelines.run.input_log import ControlEvent, InputLog, OdomEvent, ScanEvent
 from pipelines.run.odometry_check import ReversalCheck
 
+ScanRow = tuple[int, float, np.ndarray, np.ndarray, float]
+"""(scan index, log time, the pose by the motion then, the scan's end points in the laser frame (K, 2), the
+scan's own stamp)."""
 
-def scan_stream(log: InputLog) -> Iterator[tuple[int, float, np.ndarray, np.ndarray, float]]:
-    """(scan index, log time, the odometry pose then (the base's, fr079's reversal check applied), the
-    scan's end points in the laser frame (K, 2), the scan's own stamp) for every scan of an odometry log."""
+
+def scan_stream(log: InputLog, vehicle: AckermannVehicle | None = None) -> Iterator[ScanRow]:
+    """Every scan of the log (`ScanRow`). An odometry log: the odometry pose (the base's, fr079's reversal check
+    applied). An Ackermann log, given its `vehicle`: the laser's pose dead-reckoned from the controls without
+    noise (zero-order hold, as the filter's motion model), from (0, 0, 0) at the first control; only the motion
+    between scans means anything there, as with odometry."""
+    if log.motion_model != "odometry":
+        if vehicle is None:
+            raise ValueError(f"{log.path}: an Ackermann log's scans need its vehicle")
+        yield from _dead_reckoned(log, vehicle)
+        return
     reversal = ReversalCheck()
     odom = None
     for ev in log.events():
@@ -23,7 +37,34 @@ def scan_stream(log: InputLog) -> Iterator[tuple[int, float, np.ndarray, np.ndar
         elif isinstance(ev, ScanEvent):
             if odom is None:
                 raise InputError(f"{log.path}: scan {ev.index} has no odometry before it")
-            scan = Scan(ev.stamp_s, ev.ranges_m, ev.geometry or log.geometry, log.self_return_range_m)
-            _, r, b = scan.return_polar()
-            ends = np.column_stack([r * np.cos(b), r * np.sin(b)])
-            yield ev.index, ev.t_s, np.asarray(odom, dtype=float), ends, ev.stamp_s
+            yield ev.index, ev.t_s, np.asarray(odom, dtype=float), _ends(log, ev), ev.stamp_s
+
+
+def _dead_reckoned(log: InputLog, vehicle: AckermannVehicle) -> Iterator[ScanRow]:
+    pose = np.zeros((1, 3))
+    held: list[float] | None = None  # the control in force: (t_s, speed, steering)
+    t = 0.0  # the time `pose` is at
+
+    def move_to(t_next: float) -> None:
+        nonlocal pose, t
+        if held is not None and t_next > t:
+            pose = integrate_ackermann(pose, np.array([held]), t_next, t, vehicle)
+        t = max(t, t_next)
+
+    for ev in log.events():
+        if isinstance(ev, ControlEvent):
+            if held is None:
+                t = ev.t_s
+            move_to(ev.t_s)
+            held = [ev.t_s, ev.speed_mps, ev.steering_rad]
+        elif isinstance(ev, ScanEvent):
+            if held is None:
+                raise InputError(f"{log.path}: scan {ev.index} has no odometry before it")
+            move_to(ev.t_s)
+            yield ev.index, ev.t_s, pose[0].copy(), _ends(log, ev), ev.stamp_s
+
+
+def _ends(log: InputLog, ev: ScanEvent) -> np.ndarray:
+    scan = Scan(ev.stamp_s, ev.ranges_m, ev.geometry or log.geometry, log.self_return_range_m)
+    _, r, b = scan.return_polar()
+    return np.column_stack([r * np.cos(b), r * np.sin(b)])
