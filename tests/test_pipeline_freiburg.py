@@ -11,7 +11,9 @@ from mcaplog.mcapio import McapInput
 from pipelines.cli.app import app
 
 PARTICLES = 30
-"""As in the benchmark (docs/BENCHMARKS.md, five seeds); at 16 particles one seed in three breaks a loop."""
+"""The default, as in the benchmark (docs/BENCHMARKS.md, five seeds). Before every scan was placed and loops
+were closed by the back end, 16 particles broke a loop at one seed in three; now 15 hold them (0.029 to
+0.031 m, seeds 0-2: docs/CHOICES.md, "The number of particles")."""
 
 
 def test_mit_csail_relations_error_is_near_gmapping(mit_mcap, tmp_path):
