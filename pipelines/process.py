@@ -26,7 +26,7 @@ from pipelines.run.continuation import PreviousRun, Start, find_start, load_prev
 from pipelines.run.input_log import InputLog
 from pipelines.run.mount import base_poses, laser_poses
 from pipelines.run.recorded_input import fingerprint
-from pipelines.run.runner import RunConfig, SlamRunner, log_vehicle
+from pipelines.run.runner import RunConfig, SlamRunner
 from pipelines.run.startup import skip_blas_probe
 
 
@@ -249,7 +249,7 @@ def _continue(
         notice(f"finding the run in {continuation.previous}'s map (its first scans searched for over the whole map)")
     pose = None if continuation.initial_pose is None else np.asarray(continuation.initial_pose, dtype=float)
     workers = max(1, cfg.threads or os.cpu_count() or 1)
-    start = find_start(previous, log, pose, workers, log_vehicle(log, cfg.vehicle), cfg.laser_yaw_offset_rad)
+    start = find_start(previous, log, pose, workers, log.vehicle(cfg.vehicle), cfg.laser_yaw_offset_rad)
     if start.pose is None:
         lost = (
             f"{log.path}: could not find itself in the map of {continuation.previous} over its first "

@@ -15,7 +15,6 @@ from pathlib import Path
 import numpy as np
 
 from gslam.initialisation import dead_reckoning
-from gslam.vehicle import vehicle_preset
 from mcaplog.tempfiles import write_atomic
 from pipelines.errors import InputError
 from pipelines.run.input_log import ControlEvent, InputLog, OdomEvent, ScanEvent
@@ -38,7 +37,7 @@ def gmapping_scan_lines(log: InputLog) -> Iterator[str]:
     if log.motion_model == "ackermann":
         if not scans:
             return
-        vehicle = vehicle_preset(log.meta["vehicle"].get("preset", "carpark"))
+        vehicle = log.vehicle()
         times = np.array([ev.t_s for ev, _ in scans])
         u = np.asarray(controls, dtype=float).reshape(-1, 3)
         poses = list(dead_reckoning(u, np.zeros(3), float(times[0]), times, vehicle))

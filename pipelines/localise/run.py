@@ -40,7 +40,6 @@ from pipelines.run import interrupts
 from pipelines.run.input_log import InputLog
 from pipelines.run.mount import base_poses, laser_poses
 from pipelines.run.recorded_input import fingerprint
-from pipelines.run.runner import log_vehicle
 from pipelines.run.scans import scan_stream
 
 POSE, STATE, PARTICLES, MAP = POSE_TOPIC, STATE_TOPIC, PARTICLES_TOPIC, MAP_TOPIC
@@ -424,7 +423,7 @@ def _run_scans(
     try:
         _open_outputs(req, saved, log, outputs)
         out, rrd = outputs.out, outputs.rrd
-        for index, t_s, odom_last, ends, stamp_s in scan_stream(log, log_vehicle(log)):
+        for index, t_s, odom_last, ends, stamp_s in scan_stream(log):
             interrupts.check()  # a signal whose exception was swallowed on its way (e.g. in a compiled kernel)
             if index < req.skip_scans:
                 odom_prev = odom_last

@@ -16,6 +16,7 @@ and the one map moves with the one graph.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,7 +28,7 @@ from gslam.scan import transform_points
 from gslam.se2 import compose, inverse
 from gslam.vehicle import AckermannVehicle
 from mcaplog import channels as ch
-from mcaplog.mcapio import McapInput, read_error
+from mcaplog.mcapio import McapInput, Message, read_error
 from pipelines.errors import InputError
 from pipelines.run.input_log import InputLog
 from pipelines.run.mount import LaserMount, base_poses, laser_poses
@@ -108,14 +109,9 @@ def load_previous(path: Path) -> PreviousRun:
         else:
             parts[msg.topic] = msg.value
 
-    try:
-        topics = [ch.SLAM_POSE, ch.SLAM_TRAJECTORY, ch.SLAM_MAP_FINAL, ch.SLAM_GRAPH, ch.SLAM_GRAPH_SCANS]
-        for msg in src.messages([*topics, ch.SLAM_SESSIONS, ch.SLAM_EARLIER_MAPS]):
-            read(msg)
-    except InputError:
-        raise
-    except Exception as e:
-        raise InputError(f"{path}: cannot read the result ({read_error(e)})") from None
+    topics = [ch.SLAM_POSE, ch.SLAM_TRAJECTORY, ch.SLAM_MAP_FINAL, ch.SLAM_GRAPH, ch.SLAM_GRAPH_SCANS]
+    for msg in _result_messages(path, [*topics, ch.SLAM_SESSIONS, ch.SLAM_EARLIER_MAPS], src):
+        read(msg)
     if ch.SLAM_MAP_FINAL not in parts:
         raise InputError(f"{path}: no final map (/slam/map_final); was the run stopped before its first scan?")
     map_xy, map_p = ch.cloud_arrays(parts[ch.SLAM_MAP_FINAL])
@@ -128,11 +124,19 @@ def load_previous(path: Path) -> PreviousRun:
     own_input = str(meta.get("input", {}).get("path", "")) if isinstance(meta.get("input"), dict) else ""
     sessions.append(Session(len(sessions), own_input, np.asarray(t_s, dtype=float), trajectory))
     prev = PreviousRun(path, map_xy, map_p, None, sessions=sessions, earlier_maps=earlier)
-    graph = parts.get(ch.SLAM_GRAPH)
-    scans = parts.get(ch.SLAM_GRAPH_SCANS)
-    if isinstance(graph, dict) and graph.get("x_m") and scans is not None:
-        _read_graph(prev, graph, scans, path)
+    _graph_into(prev, parts, path)
     return prev
+
+
+def _result_messages(path: Path, topics: list[str], src: McapInput | None = None) -> Iterator[Message]:
+    """The messages of `topics` in the result at `path` (opened as `src` already, or here); InputError, naming
+    it, where it cannot be read."""
+    try:
+        yield from (McapInput(path) if src is None else src).messages(topics)
+    except InputError:
+        raise
+    except Exception as e:
+        raise InputError(f"{path}: cannot read the result ({read_error(e)})") from None
 
 
 def _sessions(value: object, path: Path) -> list[Session]:
@@ -151,6 +155,14 @@ def _sessions(value: object, path: Path) -> list[Session]:
         ]
     except (KeyError, TypeError, ValueError) as e:
         raise InputError(f"{path}: /slam/sessions is not what gslam writes ({e})") from None
+
+
+def _graph_into(prev: PreviousRun, parts: dict[str, object], path: Path) -> None:
+    """The pose graph and its nodes' returns of a result (`parts` by topic) into `prev`, where it holds one
+    (`prev.node_poses` stays None where it does not)."""
+    graph, scans = parts.get(ch.SLAM_GRAPH), parts.get(ch.SLAM_GRAPH_SCANS)
+    if isinstance(graph, dict) and graph.get("x_m") and scans is not None:
+        _read_graph(prev, graph, scans, path)
 
 
 def _read_graph(prev: PreviousRun, graph: dict, scans: object, path: Path) -> None:
@@ -178,19 +190,12 @@ def earlier_node_scans(path: Path, mount: LaserMount | None) -> list[tuple[np.nd
     nodes of those runs, each as its laser's final pose (3,) on `mount` and its returns (K, 2, the back
     end's own: within 20 m, one per 0.1 m voxel) in that laser's frame. Empty for a result that continues
     nothing, or one whose run could not find itself in the earlier map (their nodes are not kept)."""
-    parts: dict[str, object] = {}
-    try:
-        for msg in McapInput(Path(path)).messages([ch.SLAM_GRAPH, ch.SLAM_GRAPH_SCANS]):
-            parts[msg.topic] = msg.value
-    except InputError:
-        raise
-    except Exception as e:
-        raise InputError(f"{path}: cannot read the result ({read_error(e)})") from None
-    graph, scans = parts.get(ch.SLAM_GRAPH), parts.get(ch.SLAM_GRAPH_SCANS)
-    if not isinstance(graph, dict) or not graph.get("x_m") or scans is None:
+    path = Path(path)
+    parts = {msg.topic: msg.value for msg in _result_messages(path, [ch.SLAM_GRAPH, ch.SLAM_GRAPH_SCANS])}
+    prev = PreviousRun(path, np.empty((0, 2)), np.empty(0), None)  # (its graph and scans only)
+    _graph_into(prev, parts, path)
+    if prev.node_poses is None:
         return []
-    prev = PreviousRun(Path(path), np.empty((0, 2)), np.empty(0), None)  # (its graph and scans only)
-    _read_graph(prev, graph, scans, Path(path))
     lasers = laser_poses(mount, prev.node_poses)
     own = prev.node_sessions.max()  # the result's own run: the graph's last (its nodes come after the earlier ones)
     return [

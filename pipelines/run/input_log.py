@@ -11,6 +11,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from gslam.scan import ScanGeometry
+from gslam.vehicle import AckermannVehicle, vehicle_preset
 from mcaplog import channels as ch
 from mcaplog.mcapio import McapInput, Message, read_error
 from pipelines.errors import InputError
@@ -192,6 +193,13 @@ class InputLog:
         if not msgs:
             return None
         return np.column_stack([msgs[0].value["x_m"], msgs[0].value["y_m"]])
+
+    def vehicle(self, preset: str | None = None) -> AckermannVehicle | None:
+        """An Ackermann log's vehicle: the `preset` named (`--vehicle`), else the one its metadata names (the Car
+        Park's by default); None for an odometry log."""
+        if self.motion_model != "ackermann":
+            return None
+        return vehicle_preset(preset or self.meta["vehicle"].get("preset", "carpark"))
 
     def head_controls_and_gps(self, seconds: float) -> tuple[np.ndarray, np.ndarray]:
         """Ackermann controls and GPS fixes of the first `seconds` of them (for initialisation): from the first

@@ -19,7 +19,7 @@ from gslam.livebackend import LiveBackEnd
 from gslam.motion import apply_odometry, integrate_ackermann, odometry_delta
 from gslam.scan import Scan, ScanGeometry
 from gslam.se2 import compose
-from gslam.vehicle import VEHICLE_PRESETS, AckermannVehicle, vehicle_preset
+from gslam.vehicle import VEHICLE_PRESETS
 from pipelines.errors import InputError
 from pipelines.methods import make_filter, method
 from pipelines.run.input_log import ControlEvent, GpsEvent, InputLog, OdomEvent, ScanEvent
@@ -117,14 +117,6 @@ class Step:
     """The base's odometry pose at the scan (odometry logs; None for logs of controls)."""
 
 
-def log_vehicle(log: InputLog, preset: str | None = None) -> AckermannVehicle | None:
-    """An Ackermann log's vehicle: the `preset` named (`--vehicle`), else the one its metadata names (the Car
-    Park's by default); None for an odometry log."""
-    if log.motion_model != "ackermann":
-        return None
-    return vehicle_preset(preset or log.meta["vehicle"].get("preset", "carpark"))
-
-
 class SlamRunner:
     """Streams an `InputLog` through a `GSlamFilter`, one scan at a time."""
 
@@ -134,7 +126,7 @@ class SlamRunner:
         self.log = log
         self.cfg = cfg
         self.start = None if start is None else np.asarray(start, dtype=float)
-        self.vehicle = log_vehicle(log, cfg.vehicle)
+        self.vehicle = log.vehicle(cfg.vehicle)
         if cfg.vehicle is not None and self.vehicle is None:
             raise InputError(
                 f"{log.path}: vehicle {cfg.vehicle!r} given, but this log has {log.motion_model} poses, not an "

@@ -21,13 +21,11 @@ scan's own stamp)."""
 
 def scan_stream(log: InputLog, vehicle: AckermannVehicle | None = None) -> Iterator[ScanRow]:
     """Every scan of the log (`ScanRow`). An odometry log: the odometry pose (the base's, fr079's reversal check
-    applied). An Ackermann log, given its `vehicle`: the laser's pose dead-reckoned from the controls without
-    noise (zero-order hold, as the filter's motion model), from (0, 0, 0) at the first control; only the motion
-    between scans means anything there, as with odometry."""
+    applied). An Ackermann log: the laser's pose dead-reckoned from the controls with `vehicle` (default: the
+    log's own, `InputLog.vehicle`) without noise (zero-order hold, as the filter's motion model), from
+    (0, 0, 0) at the first control; only the motion between scans means anything there, as with odometry."""
     if log.motion_model != "odometry":
-        if vehicle is None:
-            raise ValueError(f"{log.path}: an Ackermann log's scans need its vehicle")
-        yield from _dead_reckoned(log, vehicle)
+        yield from _dead_reckoned(log, vehicle or log.vehicle())
         return
     reversal = ReversalCheck()
     odom = None
