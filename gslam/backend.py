@@ -150,8 +150,8 @@ class PoseGraphBackEnd:
     """Nodes added one at a time (`add_node`), closures searched as they come, the graph optimised."""
 
     def __init__(self, settings: BackEndSettings = BackEndSettings(), first_session: int = 0) -> None:
-        """`first_session`: the number of the mapping run the first node belongs to (the runs before it, in
-        another map, are not in this graph)."""
+        """`first_session`: the number of the mapping run the first node of this run belongs to, after the
+        earlier runs (`add_previous`, and those in other maps, which are not in this graph)."""
         self.settings = settings
         self.steps: list[int] = []  # the step (scan index in the run) of each node
         self.front: list[np.ndarray] = []  # the front end's pose of each node
@@ -174,6 +174,7 @@ class PoseGraphBackEnd:
         self.applied = False  # whether the optimised graph corrects the front end (`finish`)
         self.session: list[int] = []  # the mapping run each node belongs to (0: the first)
         self._session = int(first_session)
+        self._first_session = int(first_session)
         self._new_session = False  # the next node starts a run (`begin_session`)
 
     def __len__(self) -> int:
@@ -240,7 +241,7 @@ class PoseGraphBackEnd:
         (`add_previous`): their first is tied to the last node before loosely (`session_sigma_xy_m`), and they
         may search every submap of the earlier runs from the start."""
         if self.steps:
-            self._session = self.session[-1] + 1
+            self._session = max(self.session[-1] + 1, self._first_session)
             self._new_session = True
         self._session_start = len(self.steps)
 

@@ -43,6 +43,8 @@ SLAM_GRAPH = "/slam/graph"  # the pose graph (final): nodes, sequential edges, l
 SLAM_GRAPH_SCANS = "/slam/graph_scans"  # each graph node's returns in the map frame (final): what --continue reads
 SLAM_SESSIONS = "/slam/sessions"  # the earlier mapping runs a continued result goes on from (final)
 SLAM_EARLIER_MAPS = "/slam/earlier_maps"  # maps of earlier runs a later one could not find itself in (final)
+SLAM_EARLIER_GRAPHS = "/slam/earlier_graphs"  # the pose graph under each earlier map (final)
+SLAM_EARLIER_GRAPH_SCANS = "/slam/earlier_graph_scans"  # each earlier graph's node returns (final)
 SLAM_GRID = "/slam/grid"  # grid methods: occupancy grid (final, best particle)
 MAP_OCCUPANCY = "/map/occupancy"  # `gslam process --occupancy`: trinary navigation grid (final)
 
@@ -184,6 +186,20 @@ STATS_SCHEMA: dict[str, Any] = {
         "matched": {"type": "integer", "description": "particles whose scan match was kept"},
     },
 }
+
+
+def map_frame(k: int) -> str:
+    """The frame of a result's map k: `map` for its own (0), `map_K` for the K-th earlier map it keeps apart
+    (`/slam/earlier_maps`)."""
+    return MAP_FRAME if k == 0 else f"{MAP_FRAME}_{k}"
+
+
+def map_index(frame_id: str) -> int:
+    """Inverse of `map_frame`; -1 for a frame that is not a map's."""
+    if frame_id == MAP_FRAME:
+        return 0
+    head, _, k = frame_id.rpartition("_")
+    return int(k) if head == MAP_FRAME and k.isdigit() and int(k) > 0 else -1
 
 
 def session_trajectory(k: int) -> str:

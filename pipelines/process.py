@@ -22,7 +22,7 @@ from pipelines.outputs.writer import OccupancyMap, ResultWriter, RunEnd, RunStar
 from pipelines.outputs.writer_child import WriterChild, usage
 from pipelines.run import interrupts
 from pipelines.run.compile_time import COMPILING_NOTE, watching_compiles
-from pipelines.run.continuation import PreviousRun, Start, find_start, load_previous
+from pipelines.run.continuation import PreviousRun, SavedMap, Start, find_start, load_previous
 from pipelines.run.input_log import InputLog
 from pipelines.run.mount import base_poses, laser_poses
 from pipelines.run.recorded_input import fingerprint
@@ -223,7 +223,8 @@ def _open(
             metadata["continuation"] = {
                 "previous": str(previous.path.resolve()),
                 "earlier_runs": len(previous.sessions),
-                "graph_nodes": 0 if previous.node_poses is None else len(previous.node_poses),
+                "maps": len(previous.maps),
+                "graph_nodes": 0 if previous.maps[0].graph is None else len(previous.maps[0].graph.poses),
                 "start": start.record(),
                 "connected": connected,
             }
@@ -245,15 +246,24 @@ def _continue(
     if cfg.method != "gslam":
         raise InputError(f"--continue maps on with G-SLAM's point map; --method {cfg.method} cannot continue one")
     previous = load_previous(continuation.previous)
+    maps = len(previous.maps)
+    others = f" and its {maps - 1} earlier map{'s' if maps > 2 else ''}" if maps > 1 else ""
     if continuation.initial_pose is None and notice is not None:
-        notice(f"finding the run in {continuation.previous}'s map (its first scans searched for over the whole map)")
+        notice(
+            f"finding the run in {continuation.previous}'s map{others} (its first scans searched for over the "
+            "whole map)"
+        )
     pose = None if continuation.initial_pose is None else np.asarray(continuation.initial_pose, dtype=float)
     workers = max(1, cfg.threads or os.cpu_count() or 1)
     start = find_start(previous, log, pose, workers, log.vehicle(cfg.vehicle), cfg.laser_yaw_offset_rad)
+    if start.pose is not None and start.map:
+        if notice is not None:
+            notice(f"found the run in earlier map {start.map} of {continuation.previous}: mapping on in that map")
+        previous = previous.with_map_first(start.map)  # the map it continues becomes the result's own
     if start.pose is None:
         lost = (
-            f"{log.path}: could not find itself in the map of {continuation.previous} over its first "
-            f"{start.scans_searched} scans ({start.travel_m:.1f} m of travel)"
+            f"{log.path}: could not find itself in the map of {continuation.previous}{others} over its first "
+            f"{start.travel_m:.1f} m of travel ({start.scans_searched} scans searched)"
         )
         if continuation.if_lost != "new":
             raise InputError(
@@ -443,8 +453,7 @@ def _close_loops(
     indices = times.scan_indices
     mount = run.runner.mount
     previous = None if run.previous is None or not run.connected else run.previous.graph(mount)
-    apart = run.previous is not None and not run.connected  # a new trajectory: numbered after the earlier runs
-    first = len(run.previous.sessions) if apart else 0
+    first = 0 if run.previous is None else len(run.previous.sessions)  # this run's number, after the earlier ones
     backend = flt.close_loops(lambda steps: run.runner.scans_at([indices[k] for k in steps]), None, previous, first)
     record = backend.summary()
     record["seconds"] = round(time.perf_counter() - t0, 3)
@@ -462,10 +471,11 @@ def _graph_scans(backend: PoseGraphBackEnd) -> tuple[np.ndarray, np.ndarray]:
     return (np.concatenate(parts) if parts else np.empty((0, 2))), node
 
 
-def _sessions(run: _OpenRun, backend: PoseGraphBackEnd | None) -> tuple[list[dict] | None, list | None]:
+def _sessions(run: _OpenRun, backend: PoseGraphBackEnd | None) -> tuple[list[dict] | None, list[SavedMap] | None]:
     """The earlier runs' final trajectories for the result (`/slam/sessions`), moved with the graph where it
-    corrects them, and the earlier maps apart from this run's (`/slam/earlier_maps`): the previous result's,
-    and its own map too when this run could not find itself in it."""
+    corrects them, and the maps apart from this run's, each with its graph (`/slam/earlier_maps`,
+    `/slam/earlier_graphs`): the previous result's earlier ones, and its own map too when this run could not
+    find itself in any."""
     prev = run.previous
     if prev is None:
         return None, None
@@ -482,7 +492,7 @@ def _sessions(run: _OpenRun, backend: PoseGraphBackEnd | None) -> tuple[list[dic
             "session": s.index, "input": s.input, "map": at, "connected": at == 0, "t_s": s.t_s.tolist(),
             "x_m": poses[:, 0].tolist(), "y_m": poses[:, 1].tolist(), "yaw_rad": poses[:, 2].tolist(),
         })  # fmt: skip
-    earlier = list(prev.earlier_maps) if run.connected else [(prev.map_xy, prev.map_p), *prev.earlier_maps]
+    earlier = prev.earlier_maps if run.connected else prev.maps  # lost: the previous result's own map too
     return out, earlier
 
 
@@ -512,8 +522,14 @@ def _finish(run: _OpenRun, times: _StepTimes, notice: Callable[[str], None] | No
                     notice("building the occupancy grid (every scan ray-cast at the final poses)")
                 occupancy = _occupancy(run.runner, run.log, times.scan_indices, run.cfg, backend)
             scans = None if backend is None else _graph_scans(backend)
-            sessions, earlier_maps = _sessions(run, backend)
-            end = RunEnd(run.runner.output_filter, result_meta, occupancy, graph, scans, sessions, earlier_maps)
+            sessions, earlier = _sessions(run, backend)
+            end = RunEnd(run.runner.output_filter, result_meta, occupancy, graph, scans, sessions)
+            if earlier is not None:
+                end.earlier_maps = [(m.xy, m.p) for m in earlier]
+                end.earlier_graphs = [
+                    None if m.graph is None else (m.graph.record(k), m.graph.returns())
+                    for k, m in enumerate(earlier, start=1)
+                ]
             for w in reversed(run.writers):
                 try:
                     w.finish(end)

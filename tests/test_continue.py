@@ -226,6 +226,15 @@ def test_a_run_that_cannot_find_itself_maps_a_new_trajectory_beside_the_old_map(
     sessions = _final(apart, ch.SLAM_SESSIONS)["sessions"]
     assert [(s["map"], s["connected"]) for s in sessions] == [(1, False)]
     assert set(_final(apart, ch.SLAM_GRAPH)["session"]) == {1}
+    # the corridor's graph kept under its map, in that map's frame, as the corridor's result saved it
+    kept = _final(apart, ch.SLAM_EARLIER_GRAPHS)
+    saved = _final(corridor_map, ch.SLAM_GRAPH)
+    assert kept["map"] == 1 and set(kept["session"]) == {0} and np.allclose(kept["x_m"], saved["x_m"])
+    scans = _final(apart, ch.SLAM_EARLIER_GRAPH_SCANS)
+    assert scans.frame_id == "map_1"
+    assert np.allclose(
+        ch.node_returns_arrays(scans)[0], ch.node_returns_arrays(_final(corridor_map, ch.SLAM_GRAPH_SCANS))[0]
+    )
     meta = read_result(apart).metadata["continuation"]
     assert meta["connected"] is False and meta["start"]["how"] == "lost"
     # its own frame: the first scan's odometry pose
@@ -237,6 +246,40 @@ def test_a_run_that_cannot_find_itself_maps_a_new_trajectory_beside_the_old_map(
     assert [(s["session"], s["map"]) for s in sessions] == [(0, 1), (1, 0)]
     assert len(list(McapInput(on).messages([ch.SLAM_EARLIER_MAPS]))) == 1
     assert read_result(on).metadata["continuation"]["start"]["how"] == "found"
+
+
+def test_a_run_found_in_an_earlier_map_maps_on_in_that_one(runs, corridor_map, short_search):
+    """A third run that goes back to the first building of a result holding two (the office mapped apart
+    from the corridor): not found in the office's map, it is found in the corridor's, which it continues; the
+    office's map and graph are kept apart, and every run says which map it belongs to."""
+    tmp = runs[0]
+    apart = tmp / "apart.mcap"
+    if not apart.exists():
+        code, text = _invoke("process", str(tmp / "b.mcap"), str(apart), "--no-rrd", "--continue",
+                             str(corridor_map), "--if-lost", "new")  # fmt: skip
+        assert code == 0, text
+    back = tmp / "back.mcap"
+    code, text = _invoke("process", str(tmp / "corridor.mcap"), str(back), "--no-rrd", "--continue", str(apart))
+    assert code == 0, text
+    assert "found the run in earlier map 1" in text, text
+    start = read_result(back).metadata["continuation"]["start"]
+    assert start["how"] == "found" and start["map"] == 1
+    # the same drive as the corridor's first run: found where that run's first scan was
+    corridor = read_result(corridor_map)
+    assert np.hypot(*(np.asarray(start["pose"][:2]) - corridor.trajectory[0, :2])) < 0.3
+    sessions = _final(back, ch.SLAM_SESSIONS)["sessions"]
+    assert [(s["session"], s["map"], s["connected"]) for s in sessions] == [(0, 0, True), (1, 1, False)]
+    assert set(_final(back, ch.SLAM_GRAPH)["session"]) == {0, 2}
+    closure = read_result(back).metadata["result"]["loop_closure"]
+    assert closure["sessions"] == 2 and closure["closures_between_runs"] >= 3
+    # the corridor seen again is updated, not doubled; the office's map and graph are kept apart
+    assert len(read_result(back).map_p) < 1.2 * len(corridor.map_p)
+    office = read_result(apart)
+    earlier = [ch.cloud_arrays(m.value) for m in McapInput(back).messages([ch.SLAM_EARLIER_MAPS])]
+    assert len(earlier) == 1 and np.allclose(earlier[0][0], office.map_xy, atol=1e-4)
+    kept = _final(back, ch.SLAM_EARLIER_GRAPHS)
+    assert kept["map"] == 1 and set(kept["session"]) == {1}
+    assert len(kept["x_m"]) == len(_final(apart, ch.SLAM_GRAPH)["x_m"])
 
 
 def test_the_start_search_gives_the_same_start_on_any_number_of_threads(runs):

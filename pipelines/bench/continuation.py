@@ -28,8 +28,17 @@ import numpy as np
 from mcaplog import channels as ch
 from pipelines.bench.suites import section_head
 
-CONTINUE_CHANNELS = (ch.SLAM_MAP_FINAL, ch.SLAM_GRAPH, ch.SLAM_GRAPH_SCANS, ch.SLAM_SESSIONS)
-"""What a result holds for a run that continues it (besides its trajectory, which it holds anyway)."""
+CONTINUE_CHANNELS = (
+    ch.SLAM_MAP_FINAL,
+    ch.SLAM_GRAPH,
+    ch.SLAM_GRAPH_SCANS,
+    ch.SLAM_SESSIONS,
+    ch.SLAM_EARLIER_MAPS,
+    ch.SLAM_EARLIER_GRAPHS,
+    ch.SLAM_EARLIER_GRAPH_SCANS,
+)
+"""What a result holds for a run that continues it (besides its trajectory, which it holds anyway); the
+earlier maps' channels are there only where a run mapped apart (`--if-lost new`)."""
 
 
 def cut_input(src: Path, at_scan: int, first: Path, second: Path) -> float:

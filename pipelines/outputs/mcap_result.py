@@ -127,11 +127,19 @@ class McapResultWriter:
         if end.graph_scans is not None:
             scans_xy, node = end.graph_scans
             self.writer.write_proto(ch.SLAM_GRAPH_SCANS, ch.node_returns_cloud(t_last, scans_xy, node), ns)
-        for earlier_xy, earlier_p in end.earlier_maps or []:
-            self.writer.write_proto(ch.SLAM_EARLIER_MAPS, ch.point_cloud(t_last, earlier_xy, earlier_p), ns)
+        for k, (earlier_xy, earlier_p) in enumerate(end.earlier_maps or [], start=1):
+            frame = ch.map_frame(k)
+            self.writer.write_proto(ch.SLAM_EARLIER_MAPS, ch.point_cloud(t_last, earlier_xy, earlier_p, frame), ns)
+        for k, earlier in enumerate(end.earlier_graphs or [], start=1):
+            if earlier is None:
+                continue
+            graph, (scans_xy, node) = earlier
+            self.writer.write_json(ch.SLAM_EARLIER_GRAPHS, "gslam.PoseGraph", ch.SLAM_GRAPH_SCHEMA, graph, ns)
+            cloud = ch.node_returns_cloud(t_last, scans_xy, node, ch.map_frame(k))
+            self.writer.write_proto(ch.SLAM_EARLIER_GRAPH_SCANS, cloud, ns)
         for k, run in enumerate(end.sessions or []):  # each earlier run's path, for the viewers
             poses = np.column_stack([run["x_m"], run["y_m"], run["yaw_rad"]]).reshape(-1, 3)
-            path = ch.poses_in_frame_bytes(t_last, poses, ch.MAP_FRAME if run["map"] == 0 else f"map_{run['map']}")
+            path = ch.poses_in_frame_bytes(t_last, poses, ch.map_frame(run["map"]))
             self.writer.write_proto_bytes(ch.session_trajectory(k), ch.PosesInFrame, path, ns)
         if end.sessions:
             sessions = {"sessions": end.sessions}

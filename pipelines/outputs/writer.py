@@ -56,7 +56,11 @@ class RunEnd:
     sessions: list[dict[str, Any]] | None = None
     """The earlier mapping runs a continued run goes on from (`SLAM_SESSIONS_SCHEMA`'s items)."""
     earlier_maps: list[tuple[Any, Any]] | None = None
-    """The maps of earlier runs apart from this run's map: (points (K, 2), probabilities (K,)) each."""
+    """The maps of earlier runs apart from this run's map: (points (K, 2), probabilities (K,)) each, map
+    1, 2, ... of `sessions`, each in its own frame (`map_1`, ...)."""
+    earlier_graphs: list[tuple[dict[str, Any], tuple[Any, Any]] | None] | None = None
+    """The pose graph under each of `earlier_maps` (None for one saved without): its record
+    (`SLAM_GRAPH_SCHEMA`, with its `map`) and its nodes' returns as in `graph_scans`, in that map's frame."""
 
 
 class ResultWriter(Protocol):

@@ -11,13 +11,18 @@ first scans are found, each searched for over the whole old map. The filter then
 with the old map as every particle's map (`GSlamFilter.seed_map`), and the run's end adds the old graph's
 nodes to its pose graph (`PoseGraphBackEnd.add_previous`), so that closures between the runs are searched
 and the one map moves with the one graph.
+
+A result can hold more than one map: a run that could not find itself (`--if-lost new`) maps in its own
+frame, and the maps before it are kept apart, each with its graph (`/slam/earlier_maps`,
+`/slam/earlier_graphs`, `/slam/earlier_graph_scans`). A later run is searched for in every one of them,
+the result's own first, and continues the one it is found in (`PreviousRun.with_map_first`).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -54,40 +59,99 @@ class Session:
 
 
 @dataclass
+class SavedGraph:
+    """A pose graph as a result saves it (`/slam/graph` and `/slam/graph_scans`, or an earlier map's)."""
+
+    poses: np.ndarray
+    """(M, 3) the nodes' optimised base poses, in the frame of their map."""
+    points: list[np.ndarray]
+    """Each node's returns (K, 2), in that frame."""
+    steps: np.ndarray
+    """(M,) each node's step in its own run."""
+    sessions: np.ndarray
+    """(M,) the mapping run each node belongs to."""
+    closures: list[tuple[int, int]] = field(default_factory=list)
+    closure_scores: list[float] = field(default_factory=list)
+
+    def for_backend(self, mount: LaserMount | None) -> PreviousGraph:
+        """The graph as the back end takes it (`PoseGraphBackEnd.add_previous`), its poses the laser's on
+        `mount` (the new run's)."""
+        return PreviousGraph(
+            laser_poses(mount, self.poses), self.points, self.steps, self.sessions, self.closures, self.closure_scores
+        )
+
+    def record(self, map_index: int) -> dict:
+        """The graph as `/slam/earlier_graphs` holds it (`gslam.PoseGraph`, with the `map` it lies under)."""
+        return {
+            "map": int(map_index),
+            "x_m": self.poses[:, 0].tolist(),
+            "y_m": self.poses[:, 1].tolist(),
+            "yaw_rad": self.poses[:, 2].tolist(),
+            "step": [int(v) for v in self.steps],
+            "session": [int(v) for v in self.sessions],
+            "closures": [[int(i), int(j)] for i, j in self.closures],
+            "closure_scores": [float(v) for v in self.closure_scores],
+        }
+
+    def returns(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every node's returns (K, 2) and the node each belongs to (K,), as `/slam/graph_scans` holds them."""
+        node = np.repeat(np.arange(len(self.points)), [len(p) for p in self.points])
+        xy = np.concatenate(self.points) if self.points else np.empty((0, 2))
+        return xy.reshape(-1, 2), node
+
+
+@dataclass
+class SavedMap:
+    """One map of a result, in its own frame, and the pose graph under it (None: none was saved)."""
+
+    xy: np.ndarray  # (K, 2)
+    p: np.ndarray  # (K,)
+    graph: SavedGraph | None = None
+
+
+@dataclass
 class PreviousRun:
     """What a `gslam process` result holds for a run that continues it."""
 
     path: Path
-    map_xy: np.ndarray  # (K, 2) the final map
-    map_p: np.ndarray  # (K,)
-    node_poses: np.ndarray | None  # (M, 3) the graph's optimised base poses; None: no graph was saved
-    node_points: list[np.ndarray] = field(default_factory=list)  # each node's returns (K, 2), map frame
-    node_steps: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
-    node_sessions: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
-    closures: list[tuple[int, int]] = field(default_factory=list)
-    closure_scores: list[float] = field(default_factory=list)
+    maps: list[SavedMap]
+    """The result's maps: 0 its own (`/slam/map_final` and `/slam/graph`), k >= 1 those of earlier runs that
+    later ones could not find themselves in (`/slam/earlier_maps` and `/slam/earlier_graphs`), each in its
+    own frame."""
     sessions: list[Session] = field(default_factory=list)
     """Every earlier run, the last one the result's own."""
-    earlier_maps: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
-    """The maps of earlier runs that later ones could not find themselves in (`/slam/earlier_maps`): (points,
-    probabilities) each, in their own frames."""
 
-    def graph(self, mount: LaserMount | None) -> PreviousGraph | None:
-        """The old graph for the back end, its poses the laser's on `mount` (the new run's)."""
-        if self.node_poses is None or len(self.node_poses) == 0:
-            return None
-        return PreviousGraph(
-            laser_poses(mount, self.node_poses),
-            self.node_points,
-            self.node_steps,
-            self.node_sessions,
-            self.closures,
-            self.closure_scores,
-        )
+    @property
+    def map_xy(self) -> np.ndarray:
+        return self.maps[0].xy
+
+    @property
+    def map_p(self) -> np.ndarray:
+        return self.maps[0].p
+
+    @property
+    def earlier_maps(self) -> list[SavedMap]:
+        return self.maps[1:]
+
+    def graph(self, mount: LaserMount | None, k: int = 0) -> PreviousGraph | None:
+        """Map k's graph for the back end, its poses the laser's on `mount` (the new run's); None where the
+        result saved none."""
+        g = self.maps[k].graph
+        return None if g is None or len(g.poses) == 0 else g.for_backend(mount)
+
+    def with_map_first(self, k: int) -> PreviousRun:
+        """The same result with its map k as the one a new run continues: the others follow in their order,
+        and each run says its map by the new numbers."""
+        if k == 0:
+            return self
+        order = [k, *(m for m in range(len(self.maps)) if m != k)]
+        renumber = {old: new for new, old in enumerate(order)}
+        sessions = [replace(s, map=renumber[s.map]) for s in self.sessions]
+        return PreviousRun(self.path, [self.maps[m] for m in order], sessions)
 
 
 def load_previous(path: Path) -> PreviousRun:
-    """The map, graph and trajectories of the `gslam process` result at `path`; InputError, naming the file,
+    """The maps, graphs and trajectories of the `gslam process` result at `path`; InputError, naming the file,
     for anything that is not one that can be continued."""
     path = Path(path)
     if not path.is_file():
@@ -100,17 +164,24 @@ def load_previous(path: Path) -> PreviousRun:
     parts: dict[str, object] = {}
     t_s: list[float] = []
     earlier: list[tuple[np.ndarray, np.ndarray]] = []
+    earlier_graphs: dict[int, dict] = {}
+    earlier_scans: dict[int, object] = {}
 
     def read(msg) -> None:
         if msg.topic == ch.SLAM_POSE:
             t_s.append(msg.t_s)
         elif msg.topic == ch.SLAM_EARLIER_MAPS:
             earlier.append(ch.cloud_arrays(msg.value))
+        elif msg.topic == ch.SLAM_EARLIER_GRAPHS and isinstance(msg.value, dict):
+            earlier_graphs[int(msg.value.get("map", -1))] = msg.value
+        elif msg.topic == ch.SLAM_EARLIER_GRAPH_SCANS:
+            earlier_scans[ch.map_index(msg.value.frame_id)] = msg.value
         else:
             parts[msg.topic] = msg.value
 
     topics = [ch.SLAM_POSE, ch.SLAM_TRAJECTORY, ch.SLAM_MAP_FINAL, ch.SLAM_GRAPH, ch.SLAM_GRAPH_SCANS]
-    for msg in _result_messages(path, [*topics, ch.SLAM_SESSIONS, ch.SLAM_EARLIER_MAPS], src):
+    more = [ch.SLAM_SESSIONS, ch.SLAM_EARLIER_MAPS, ch.SLAM_EARLIER_GRAPHS, ch.SLAM_EARLIER_GRAPH_SCANS]
+    for msg in _result_messages(path, [*topics, *more], src):
         read(msg)
     if ch.SLAM_MAP_FINAL not in parts:
         raise InputError(f"{path}: no final map (/slam/map_final); was the run stopped before its first scan?")
@@ -123,9 +194,11 @@ def load_previous(path: Path) -> PreviousRun:
     sessions = _sessions(parts.get(ch.SLAM_SESSIONS), path)
     own_input = str(meta.get("input", {}).get("path", "")) if isinstance(meta.get("input"), dict) else ""
     sessions.append(Session(len(sessions), own_input, np.asarray(t_s, dtype=float), trajectory))
-    prev = PreviousRun(path, map_xy, map_p, None, sessions=sessions, earlier_maps=earlier)
-    _graph_into(prev, parts, path)
-    return prev
+    own = len(sessions) - 1
+    maps = [SavedMap(map_xy, map_p, _graph_of(parts.get(ch.SLAM_GRAPH), parts.get(ch.SLAM_GRAPH_SCANS), own, path))]
+    for k, (xy, p) in enumerate(earlier, start=1):
+        maps.append(SavedMap(xy, p, _graph_of(earlier_graphs.get(k), earlier_scans.get(k), own, path)))
+    return PreviousRun(path, maps, sessions)
 
 
 def _result_messages(path: Path, topics: list[str], src: McapInput | None = None) -> Iterator[Message]:
@@ -157,50 +230,43 @@ def _sessions(value: object, path: Path) -> list[Session]:
         raise InputError(f"{path}: /slam/sessions is not what gslam writes ({e})") from None
 
 
-def _graph_into(prev: PreviousRun, parts: dict[str, object], path: Path) -> None:
-    """The pose graph and its nodes' returns of a result (`parts` by topic) into `prev`, where it holds one
-    (`prev.node_poses` stays None where it does not)."""
-    graph, scans = parts.get(ch.SLAM_GRAPH), parts.get(ch.SLAM_GRAPH_SCANS)
-    if isinstance(graph, dict) and graph.get("x_m") and scans is not None:
-        _read_graph(prev, graph, scans, path)
-
-
-def _read_graph(prev: PreviousRun, graph: dict, scans: object, path: Path) -> None:
+def _graph_of(graph: object, scans: object, own_session: int, path: Path) -> SavedGraph | None:
+    """A saved pose graph (`gslam.PoseGraph`) and its nodes' returns (`/slam/graph_scans`), or None where the
+    result holds none (written with loop closure off, or by an older gslam); InputError where they do not
+    agree. `own_session`: the run of nodes that do not say theirs (a result of a run that continued none)."""
+    if not (isinstance(graph, dict) and graph.get("x_m") and scans is not None):
+        return None
     try:
         poses = np.column_stack([graph["x_m"], graph["y_m"], graph["yaw_rad"]]).astype(float)
         steps = np.asarray(graph["step"], dtype=np.int64)
-        sessions = np.asarray(graph.get("session", [len(prev.sessions) - 1] * len(steps)), dtype=np.int64)
+        sessions = np.asarray(graph.get("session", [own_session] * len(steps)), dtype=np.int64)
         xy, node = ch.node_returns_arrays(scans)
+        closures = [(int(i), int(j)) for i, j in graph.get("closures", [])]
+        scores = [float(v) for v in graph.get("closure_scores", [])]
     except (KeyError, TypeError, ValueError) as e:
         raise InputError(f"{path}: its pose graph is not what gslam writes ({e})") from None
     if len(steps) != len(poses) or len(sessions) != len(poses) or (len(node) and node.max() >= len(poses)):
         raise InputError(f"{path}: its pose graph's nodes and their scans do not agree")
     order = np.argsort(node, kind="stable")
     bounds = np.searchsorted(node[order], np.arange(len(poses) + 1))
-    prev.node_poses = poses
-    prev.node_points = [xy[order[bounds[k] : bounds[k + 1]]] for k in range(len(poses))]
-    prev.node_steps = steps
-    prev.node_sessions = sessions
-    prev.closures = [(int(i), int(j)) for i, j in graph.get("closures", [])]
-    prev.closure_scores = [float(s) for s in graph.get("closure_scores", [])]
+    points = [xy[order[bounds[k] : bounds[k + 1]]] for k in range(len(poses))]
+    return SavedGraph(poses, points, steps, sessions, closures, scores)
 
 
 def earlier_node_scans(path: Path, mount: LaserMount | None) -> list[tuple[np.ndarray, np.ndarray]]:
-    """The scans of the earlier mapping runs that the continued result at `path` holds: its pose graph's
-    nodes of those runs, each as its laser's final pose (3,) on `mount` and its returns (K, 2, the back
-    end's own: within 20 m, one per 0.1 m voxel) in that laser's frame. Empty for a result that continues
-    nothing, or one whose run could not find itself in the earlier map (their nodes are not kept)."""
+    """The scans of the earlier mapping runs that the continued result at `path` holds in its own map: its
+    pose graph's nodes of those runs, each as its laser's final pose (3,) on `mount` and its returns (K, 2,
+    the back end's own: within 20 m, one per 0.1 m voxel) in that laser's frame. Empty for a result that
+    continues nothing, or one whose run could not find itself in the earlier maps."""
     path = Path(path)
     parts = {msg.topic: msg.value for msg in _result_messages(path, [ch.SLAM_GRAPH, ch.SLAM_GRAPH_SCANS])}
-    prev = PreviousRun(path, np.empty((0, 2)), np.empty(0), None)  # (its graph and scans only)
-    _graph_into(prev, parts, path)
-    if prev.node_poses is None:
+    graph = _graph_of(parts.get(ch.SLAM_GRAPH), parts.get(ch.SLAM_GRAPH_SCANS), 0, path)
+    if graph is None:
         return []
-    lasers = laser_poses(mount, prev.node_poses)
-    own = prev.node_sessions.max()  # the result's own run: the graph's last (its nodes come after the earlier ones)
+    lasers = laser_poses(mount, graph.poses)
+    own = graph.sessions.max()  # the result's own run: the graph's last (its nodes come after the earlier ones)
     return [
-        (lasers[k], transform_points(inverse(lasers[k]), prev.node_points[k]))
-        for k in np.flatnonzero(prev.node_sessions < own)
+        (lasers[k], transform_points(inverse(lasers[k]), graph.points[k])) for k in np.flatnonzero(graph.sessions < own)
     ]
 
 
@@ -218,11 +284,14 @@ class Start:
     travel_m: float = 0.0
     """The odometry's travel up to that scan."""
     scans_searched: int = 0
-    """Scans searched for in the old map."""
+    """Scans searched for in the old map (in all of them, where the result holds more than one)."""
+    map: int = 0
+    """The map of the previous result it was found in (`PreviousRun.maps`): 0 its own."""
 
     def record(self) -> dict:
         return {
             "how": self.how,
+            "map": self.map,
             "pose": None if self.pose is None else [float(v) for v in self.pose],
             "found_at_scan": self.scan,
             "travel_m": round(self.travel_m, 3),
@@ -254,25 +323,43 @@ def find_start(
     vehicle: AckermannVehicle | None = None,
     laser_yaw_rad: float = 0.0,
 ) -> Start:
-    """Where the new run's first scan stands in the old map (the base's pose): the `initial_pose` given, or
-    where two consecutive scans of its first `SEARCH_TRAVEL_M` of travel (one each `CANDIDATE_TRAVEL_M`) are
-    found in the old map, each searched over the whole map and every heading (`PoseGraphBackEnd.locate`),
-    the two agreeing with the odometry between them; the first of them carried back to the first scan by the
-    odometry. An Ackermann log's odometry is its controls dead-reckoned with its `vehicle`
-    (`pipelines.run.scans.scan_stream`); `laser_yaw_rad`: the laser's mounting yaw the run adds to every
-    bearing (`RunConfig.laser_yaw_offset_rad`), so that the scans are searched as the run saw the old ones.
-    `workers`: threads searching the map's regions at once (`PoseGraphBackEnd.locate`)."""
+    """Where the new run's first scan stands in one of the previous result's maps (the base's pose): the
+    `initial_pose` given (in the result's own map), or where two consecutive scans of its first
+    `SEARCH_TRAVEL_M` of travel (one each `CANDIDATE_TRAVEL_M`) are found in a map, each searched over the
+    whole map and every heading (`PoseGraphBackEnd.locate`), the two agreeing with the odometry between them;
+    the first of them carried back to the first scan by the odometry. The result's own map is searched first,
+    then each earlier one it keeps apart (`PreviousRun.maps`). An Ackermann log's odometry is its controls
+    dead-reckoned with its `vehicle` (`pipelines.run.scans.scan_stream`); `laser_yaw_rad`: the laser's
+    mounting yaw the run adds to every bearing (`RunConfig.laser_yaw_offset_rad`), so that the scans are
+    searched as the run saw the old ones. `workers`: threads searching the map's regions at once."""
     if initial_pose is not None:
         return Start(np.asarray(initial_pose, dtype=float), "initial pose")
-    mount = log.mount
-    graph = prev.graph(mount)
-    if graph is None:
+    graphs = [(k, prev.graph(log.mount, k)) for k in range(len(prev.maps))]
+    if graphs[0][1] is None:
         raise InputError(
             f"{prev.path}: holds no pose graph with its scans (written with loop closure off, or by an older "
             "gslam), which finding the run in its map needs; give --initial-pose X Y YAW"
         )
+    searched = 0
+    lost = Start(None, "lost")
+    for k, graph in graphs:
+        if graph is None:  # an earlier map saved without its graph (by an older gslam): it cannot be searched
+            continue
+        start = _find_in(graph, log, workers, vehicle, laser_yaw_rad)
+        searched += start.scans_searched
+        if start.pose is not None:
+            return replace(start, map=k, scans_searched=searched)
+        lost = replace(start, scans_searched=searched)
+    return lost
+
+
+def _find_in(
+    graph: PreviousGraph, log: InputLog, workers: int, vehicle: AckermannVehicle | None, laser_yaw_rad: float
+) -> Start:
+    """`find_start` in one map, whose pose graph is `graph`."""
     from pipelines.run.scans import scan_stream
 
+    mount = log.mount
     backend = PoseGraphBackEnd(BackEndSettings())
     backend.add_previous(*graph)
     odom0 = last_odom = None
