@@ -36,16 +36,16 @@ class BenchRequest:
     command: str = "gslam bench"
 
 
-def corpus_logs(logs: str | None, datasets: Path) -> list[str] | None:
-    """The corpus logs `--logs` names (None: all), checked against the corpus; and `--datasets` checked."""
+def corpus_logs(logs: str | None, datasets: Path, more: tuple[str, ...] = ()) -> list[str] | None:
+    """The corpus logs `--logs` names (None: all), checked against the corpus and the suite's `more` logs;
+    and `--datasets` checked."""
     from pipelines.bench.corpus import FREIBURG_LOGS, RADISH_LOGS
 
+    known = [*FREIBURG_LOGS, *RADISH_LOGS, *more]
     only = [name.strip() for name in logs.split(",") if name.strip()] if logs else None
-    unknown = sorted(set(only or []) - set(FREIBURG_LOGS + RADISH_LOGS))
+    unknown = sorted(set(only or []) - set(known))
     if unknown:
-        raise OptionError(
-            f"--logs: unknown log(s) {', '.join(unknown)}; the corpus: {', '.join(FREIBURG_LOGS + RADISH_LOGS)}"
-        )
+        raise OptionError(f"--logs: unknown log(s) {', '.join(unknown)}; the logs: {', '.join(known)}")
     if not datasets.is_dir():
         raise OptionError(f"--datasets {datasets}: no such directory")
     return only
@@ -156,12 +156,18 @@ def _continue(request: BenchRequest, echo: Callable[[str], None]) -> str:
     from pipelines.bench.corpus import build_corpus
     from pipelines.bench.suites import ingest_to
 
-    only = corpus_logs(request.logs, request.datasets)
+    only = corpus_logs(request.logs, request.datasets, ("carpark",))
     with tempfile.TemporaryDirectory(prefix="gslam-bench-continue-in-") as tmp:
         corpus = [c for c in build_corpus(request.datasets, Path(tmp), 0) if only is None or c.name in only]
-        if not corpus:
-            raise OptionError(f"--datasets {request.datasets}: no corpus log found")
         inputs = [(c.name, ingest_to(c.log, Path(tmp))) for c in corpus]
+        carpark = request.datasets / "carpark"  # the paper's log, scored by its GPS
+        if only is None or "carpark" in only:
+            if carpark.is_dir():
+                inputs.append(("carpark", ingest_to(carpark, Path(tmp))))
+            else:
+                echo(f"--datasets {request.datasets}: carpark not found; left out")
+        if not inputs:
+            raise OptionError(f"--datasets {request.datasets}: no corpus log found")
         runs = run_continue_bench(inputs, list(range(request.seeds or 1)), echo)
     return continue_section(runs, request.command, *_machine())
 
