@@ -193,10 +193,10 @@ def run_continue_bench(
                     loads.append(time.perf_counter() - t0)
                 # the relations between the second half's scans (by the sensor stamps they name), or the
                 # GPS fixes in its time
-                second = read_result(alone)
-                since = float(second.stamp_s[0]) - 1e-3
+                half = read_result(alone)
+                since = float(half.stamp_s[0]) - 1e-3
                 later = relations[(relations[:, 0] >= since) & (relations[:, 1] >= since)]
-                fixes = gps[gps[:, 0] >= float(second.t_s[0])]
+                fixes = gps[gps[:, 0] >= float(half.t_s[0])]
                 w, al, co = (_scored(r, later, fixes) for r in (whole, alone, cont))
                 meta = read_result(cont).metadata
                 closure = meta["result"].get("loop_closure") or {}
