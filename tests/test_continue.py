@@ -210,14 +210,76 @@ def test_bad_continuations_get_one_line_and_write_nothing(runs, corridor_map, sh
     assert not out.exists() and not out.with_suffix(".rrd").exists()
 
 
-def test_a_run_that_cannot_find_itself_maps_a_new_trajectory_beside_the_old_map(runs, corridor_map, short_search):
+@pytest.fixture(scope="module")
+def apart(runs, corridor_map):
+    """`--if-lost new`: the office's second run continued from the corridor's map, lost there (after 5 m of
+    search) and mapped apart: (the result, exit code, output)."""
+    tmp = runs[0]
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("pipelines.run.continuation.SEARCH_TRAVEL_M", 5.0)
+        code, text = _invoke("process", str(tmp / "b.mcap"), str(tmp / "apart.mcap"), "--no-rrd", "--continue",
+                             str(corridor_map), "--if-lost", "new")  # fmt: skip
+    return tmp / "apart.mcap", code, text
+
+
+def _rewritten(src, dst, topic: str, change) -> None:
+    """A copy of the MCAP `src` at `dst` with each JSON message on `topic` replaced by `change(value)`."""
+    import json
+
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with open(src, "rb") as f, open(dst, "wb") as out:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        w = Writer(out)
+        w.start()
+        schemas = {i: w.register_schema(s.name, s.encoding, s.data) for i, s in summary.schemas.items()}
+        channels = {
+            i: w.register_channel(c.topic, c.message_encoding, schemas.get(c.schema_id, 0), c.metadata)
+            for i, c in summary.channels.items()
+        }
+        for m in reader.iter_metadata():
+            w.add_metadata(m.name, m.metadata)
+        for _, c, m in reader.iter_messages(log_time_order=True):
+            data = json.dumps(change(json.loads(m.data))).encode() if c.topic == topic else m.data
+            w.add_message(channels[c.id], m.log_time, data, m.publish_time)
+        w.finish()
+
+
+def test_a_result_whose_runs_and_maps_do_not_agree_gets_one_line(runs, apart, tmp_path):
+    """A continued result whose /slam/sessions names a map it does not hold, or whose earlier graph's nodes
+    and scans do not agree: refused in one line naming the file, nothing written."""
+    tmp = runs[0]
+    path, code, text = apart
+    assert code == 0, text
+
+    def far_map(v):
+        v["sessions"][0]["map"] = 5
+        return v
+
+    def short_graph(v):
+        v["x_m"] = v["x_m"][:-1]
+        return v
+
+    out = tmp_path / "out.mcap"
+    for topic, change, said in (
+        (ch.SLAM_SESSIONS, far_map, "/slam/sessions puts run 0 in map 5; the result holds 2"),
+        (ch.SLAM_EARLIER_GRAPHS, short_graph, "its pose graph is not what gslam writes"),
+    ):
+        bad = tmp_path / "bad.mcap"
+        _rewritten(path, bad, topic, change)
+        code, text = _invoke("process", str(tmp / "c.mcap"), str(out), "--no-rrd", "--continue", str(bad))
+        assert code != 0 and said in text and str(bad) in text, text
+        assert "Traceback" not in text and not out.exists()
+
+
+def test_a_run_that_cannot_find_itself_maps_a_new_trajectory_beside_the_old_map(runs, corridor_map, apart):
     """--if-lost new: the office's run, lost in the corridor's map, maps the office in its own frame; the
     corridor's map and run stay in the result apart from it (`/slam/earlier_maps`, map 1), and a run that
     continues that result finds itself in the office's map and keeps the corridor's too."""
     tmp, sim, _, (b0, _) = runs
-    apart = tmp / "apart.mcap"
-    code, text = _invoke("process", str(tmp / "b.mcap"), str(apart), "--no-rrd", "--continue", str(corridor_map),
-                         "--if-lost", "new")  # fmt: skip
+    apart, code, text = apart
     assert code == 0, text
     assert "mapping it as a new trajectory" in text
     corridor = read_result(corridor_map)
@@ -248,16 +310,13 @@ def test_a_run_that_cannot_find_itself_maps_a_new_trajectory_beside_the_old_map(
     assert read_result(on).metadata["continuation"]["start"]["how"] == "found"
 
 
-def test_a_run_found_in_an_earlier_map_maps_on_in_that_one(runs, corridor_map, short_search):
+def test_a_run_found_in_an_earlier_map_maps_on_in_that_one(runs, corridor_map, apart, short_search):
     """A third run that goes back to the first building of a result holding two (the office mapped apart
     from the corridor): not found in the office's map, it is found in the corridor's, which it continues; the
     office's map and graph are kept apart, and every run says which map it belongs to."""
     tmp = runs[0]
-    apart = tmp / "apart.mcap"
-    if not apart.exists():
-        code, text = _invoke("process", str(tmp / "b.mcap"), str(apart), "--no-rrd", "--continue",
-                             str(corridor_map), "--if-lost", "new")  # fmt: skip
-        assert code == 0, text
+    apart, code, text = apart
+    assert code == 0, text
     back = tmp / "back.mcap"
     code, text = _invoke("process", str(tmp / "corridor.mcap"), str(back), "--no-rrd", "--continue", str(apart))
     assert code == 0, text

@@ -198,6 +198,9 @@ def load_previous(path: Path) -> PreviousRun:
     maps = [SavedMap(map_xy, map_p, _graph_of(parts.get(ch.SLAM_GRAPH), parts.get(ch.SLAM_GRAPH_SCANS), own, path))]
     for k, (xy, p) in enumerate(earlier, start=1):
         maps.append(SavedMap(xy, p, _graph_of(earlier_graphs.get(k), earlier_scans.get(k), own, path)))
+    for s in sessions:
+        if not 0 <= s.map < len(maps):
+            raise InputError(f"{path}: /slam/sessions puts run {s.index} in map {s.map}; the result holds {len(maps)}")
     return PreviousRun(path, maps, sessions)
 
 
