@@ -22,7 +22,7 @@ from pipelines.outputs.writer import OccupancyMap, ResultWriter, RunEnd, RunStar
 from pipelines.outputs.writer_child import WriterChild, usage
 from pipelines.run import interrupts
 from pipelines.run.compile_time import COMPILING_NOTE, watching_compiles
-from pipelines.run.continuation import PreviousRun, SavedMap, Start, find_start, load_previous
+from pipelines.run.continuation import PreviousRun, SavedMap, Start, find_start, load_previous, node_returns
 from pipelines.run.input_log import InputLog
 from pipelines.run.mount import base_poses, laser_poses
 from pipelines.run.recorded_input import fingerprint
@@ -466,9 +466,7 @@ def _close_loops(
 
 def _graph_scans(backend: PoseGraphBackEnd) -> tuple[np.ndarray, np.ndarray]:
     """Each node's returns in the map frame, at its final pose, and the node each belongs to."""
-    parts = [transform_points(backend.estimate[k], pts) for k, pts in enumerate(backend.points)]
-    node = np.repeat(np.arange(len(parts)), [len(p) for p in parts])
-    return (np.concatenate(parts) if parts else np.empty((0, 2))), node
+    return node_returns([transform_points(backend.estimate[k], pts) for k, pts in enumerate(backend.points)])
 
 
 def _sessions(run: _OpenRun, backend: PoseGraphBackEnd | None) -> tuple[list[dict] | None, list[SavedMap] | None]:

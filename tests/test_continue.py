@@ -17,7 +17,7 @@ from worlds import corridor_world, office_world, simulate_robot_loop
 from gslam.se2 import compose, inverse
 from mcaplog import channels as ch
 from mcaplog.mcapio import McapInput
-from pipelines.bench.continuation import cut_input
+from pipelines.bench.continuation import cut_input, mirrored_writer
 from pipelines.cli.app import app
 from pipelines.evaluation.evaluate import read_result
 from pipelines.outputs import rerun_entities as entity
@@ -227,20 +227,10 @@ def _rewritten(src, dst, topic: str, change) -> None:
     import json
 
     from mcap.reader import make_reader
-    from mcap.writer import Writer
 
     with open(src, "rb") as f, open(dst, "wb") as out:
         reader = make_reader(f)
-        summary = reader.get_summary()
-        w = Writer(out)
-        w.start()
-        schemas = {i: w.register_schema(s.name, s.encoding, s.data) for i, s in summary.schemas.items()}
-        channels = {
-            i: w.register_channel(c.topic, c.message_encoding, schemas.get(c.schema_id, 0), c.metadata)
-            for i, c in summary.channels.items()
-        }
-        for m in reader.iter_metadata():
-            w.add_metadata(m.name, m.metadata)
+        w, channels = mirrored_writer(out, reader)
         for _, c, m in reader.iter_messages(log_time_order=True):
             data = json.dumps(change(json.loads(m.data))).encode() if c.topic == topic else m.data
             w.add_message(channels[c.id], m.log_time, data, m.publish_time)

@@ -24,11 +24,16 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, BinaryIO
 
 import numpy as np
 
 from mcaplog import channels as ch
 from pipelines.bench.suites import section_head
+
+if TYPE_CHECKING:
+    from mcap.reader import McapReader
+    from mcap.writer import Writer
 
 CONTINUE_CHANNELS = (
     ch.SLAM_MAP_FINAL,
@@ -43,13 +48,31 @@ CONTINUE_CHANNELS = (
 earlier maps' channels are there only where a run mapped apart (`--if-lost new`)."""
 
 
+def mirrored_writer(out: BinaryIO, reader: McapReader) -> tuple[Writer, dict[int, int]]:
+    """An MCAP writer on `out`, started as the file `reader` reads (its header's profile and library) and
+    holding its schemas, channels and metadata: (the writer, the reader's channel ids to the writer's). What
+    a copy of the file, whole or in part, is written with."""
+    from mcap.writer import Writer
+
+    header, summary = reader.get_header(), reader.get_summary()
+    w = Writer(out)
+    w.start(profile=header.profile, library=header.library)
+    schemas = {s.id: w.register_schema(s.name, s.encoding, s.data) for s in summary.schemas.values()}
+    channels = {
+        c.id: w.register_channel(c.topic, c.message_encoding, schemas.get(c.schema_id, 0), c.metadata)
+        for c in summary.channels.values()
+    }
+    for m in reader.iter_metadata():
+        w.add_metadata(m.name, m.metadata)
+    return w, channels
+
+
 def cut_input(src: Path, at_scan: int, first: Path, second: Path) -> float:
     """Cut the input MCAP `src` at scan `at_scan` into `first` (the scans before it) and `second` (that scan
     and the rest, with every other message of the second before it: the odometry its first scan needs);
     messages written once (relations, landmarks) go to both, with the metadata. Returns the cut's log time
     (s)."""
     from mcap.reader import make_reader
-    from mcap.writer import Writer
 
     with open(src, "rb") as f:
         reader = make_reader(f)
@@ -60,20 +83,10 @@ def cut_input(src: Path, at_scan: int, first: Path, second: Path) -> float:
         if not 0 < at_scan < len(times):
             raise ValueError(f"{src}: cannot cut its {len(times)} scans at scan {at_scan}")
         cut = times[at_scan]
-        header = reader.get_header()
         outs = []
         for path in (first, second):
             fo = open(path, "wb")
-            w = Writer(fo)
-            w.start(profile=header.profile, library=header.library)
-            schemas = {s.id: w.register_schema(s.name, s.encoding, s.data) for s in summary.schemas.values()}
-            channels = {
-                c.id: w.register_channel(c.topic, c.message_encoding, schemas.get(c.schema_id, 0), c.metadata)
-                for c in summary.channels.values()
-            }
-            for m in reader.iter_metadata():
-                w.add_metadata(m.name, m.metadata)
-            outs.append((fo, w, channels))
+            outs.append((fo, *mirrored_writer(fo, reader)))
         for _, c, m in reader.iter_messages(log_time_order=True):
             once = counts.get(c.id, 0) == 1
             lead = c.id not in scan_ids and m.log_time >= cut - 1_000_000_000
@@ -132,14 +145,14 @@ def _scored(result: Path, relations: np.ndarray, gps: np.ndarray) -> tuple[float
     """(translation m, rotation deg, references used): the relations error where there are relations, else
     the mean distance to the GPS fixes (the paper's measure; no rotation)."""
     from pipelines.evaluation.evaluate import read_result
-    from pipelines.evaluation.metrics import gps_mean_error, relations_error
+    from pipelines.evaluation.metrics import gps_mean_error, interpolate_positions, relations_error
 
     data = read_result(result)
     if len(relations) or not len(gps):
         err = relations_error(data.stamp_s, data.trajectory, relations)
         return err["relations_trans_m"], err["relations_rot_deg"], err["relations_used"]
-    used = int(np.count_nonzero((gps[:, 0] >= data.t_s[0]) & (gps[:, 0] <= data.t_s[-1])))
-    return gps_mean_error(data.t_s, data.trajectory, gps), float("nan"), used
+    inside, _ = interpolate_positions(data.t_s, data.trajectory, gps[:, 0])  # the fixes gps_mean_error takes
+    return gps_mean_error(data.t_s, data.trajectory, gps), float("nan"), int(np.count_nonzero(inside))
 
 
 def _channel_bytes(path: Path, topics: tuple[str, ...]) -> int:

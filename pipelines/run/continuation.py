@@ -94,10 +94,16 @@ class SavedGraph:
         }
 
     def returns(self) -> tuple[np.ndarray, np.ndarray]:
-        """Every node's returns (K, 2) and the node each belongs to (K,), as `/slam/graph_scans` holds them."""
-        node = np.repeat(np.arange(len(self.points)), [len(p) for p in self.points])
-        xy = np.concatenate(self.points) if self.points else np.empty((0, 2))
-        return xy.reshape(-1, 2), node
+        """Every node's returns and the node each belongs to, as `/slam/graph_scans` holds them."""
+        return node_returns(self.points)
+
+
+def node_returns(points: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Each node's returns (a list of (K_k, 2)) as one array (K, 2) and the node each belongs to (K,): the
+    form of `/slam/graph_scans` (`mcaplog.channels.node_returns_cloud`; `_graph_of` splits it again)."""
+    node = np.repeat(np.arange(len(points)), [len(p) for p in points])
+    xy = np.concatenate(points) if points else np.empty((0, 2))
+    return xy.reshape(-1, 2), node
 
 
 @dataclass
@@ -343,12 +349,13 @@ def find_start(
             f"{prev.path}: holds no pose graph with its scans (written with loop closure off, or by an older "
             "gslam), which finding the run in its map needs; give --initial-pose X Y YAW"
         )
+    candidates = _Candidates(log, vehicle, laser_yaw_rad)
     searched = 0
     lost = Start(None, "lost")
     for k, graph in graphs:
         if graph is None:  # an earlier map saved without its graph (by an older gslam): it cannot be searched
             continue
-        start = _find_in(graph, log, workers, vehicle, laser_yaw_rad)
+        start = _find_in(graph, candidates, log.mount, workers)
         searched += start.scans_searched
         if start.pose is not None:
             return replace(start, map=k, scans_searched=searched)
@@ -356,26 +363,64 @@ def find_start(
     return lost
 
 
-def _find_in(
-    graph: PreviousGraph, log: InputLog, workers: int, vehicle: AckermannVehicle | None, laser_yaw_rad: float
-) -> Start:
-    """`find_start` in one map, whose pose graph is `graph`."""
-    from pipelines.run.scans import scan_stream
+class _Candidates:
+    """The new run's scans that the start search looks for, (scan, travel, odometry, returns) each: one every
+    `CANDIDATE_TRAVEL_M` or `CANDIDATE_TURN_RAD` of its first `SEARCH_TRAVEL_M` of travel, the first scan
+    first. Read from the log as far as a search asks for them, and kept, so that the next map's search takes
+    the same ones without reading the log again."""
 
-    mount = log.mount
+    def __init__(self, log: InputLog, vehicle: AckermannVehicle | None, laser_yaw_rad: float) -> None:
+        self.taken: list[tuple[int, float, np.ndarray, np.ndarray]] = []
+        self.travel_m = 0.0
+        """The odometry's travel over the scans read so far."""
+        self._rows = self._read(log, vehicle, laser_yaw_rad)
+
+    def batches(self) -> Iterator[list[tuple[int, float, np.ndarray, np.ndarray]]]:
+        """The candidates in order, `CANDIDATES_AT_ONCE` at a time (each region's field is built once for them)."""
+        at = 0
+        while True:
+            while len(self.taken) < at + CANDIDATES_AT_ONCE and (row := next(self._rows, None)) is not None:
+                self.taken.append(row)
+            batch = self.taken[at : at + CANDIDATES_AT_ONCE]
+            if not batch:
+                return
+            yield batch
+            at += CANDIDATES_AT_ONCE
+
+    def _read(
+        self, log: InputLog, vehicle: AckermannVehicle | None, laser_yaw_rad: float
+    ) -> Iterator[tuple[int, float, np.ndarray, np.ndarray]]:
+        from pipelines.run.scans import scan_stream
+
+        c, s = math.cos(laser_yaw_rad), math.sin(laser_yaw_rad)
+        turned = np.array([[c, s], [-s, c]])  # rows (x, y) @ turned: each turned by the yaw
+        last_odom = None
+        turn = 0.0
+        for index, _, odom, ends, _ in scan_stream(log, vehicle):
+            if laser_yaw_rad:
+                ends = ends @ turned
+            if last_odom is not None:
+                delta = odometry_delta(last_odom, odom)
+                self.travel_m += math.hypot(delta[0], delta[1])
+                turn += abs(delta[2])
+            if self.travel_m > SEARCH_TRAVEL_M:
+                return
+            last_odom = odom
+            taken = len(self.taken)
+            if taken and self.travel_m < taken * CANDIDATE_TRAVEL_M and turn < taken * CANDIDATE_TURN_RAD:
+                continue
+            yield index, self.travel_m, np.asarray(odom, dtype=float), ends
+
+
+def _find_in(graph: PreviousGraph, candidates: _Candidates, mount: LaserMount | None, workers: int) -> Start:
+    """`find_start` in one map, whose pose graph is `graph`."""
     backend = PoseGraphBackEnd(BackEndSettings())
     backend.add_previous(*graph)
-    odom0 = last_odom = None
-    candidates: list[tuple[int, float, np.ndarray, np.ndarray]] = []  # (scan, travel, odometry, returns)
     last_hit: tuple | None = None  # (base pose, odometry, scan, travel) of the last candidate found
-    travel = turn = 0.0
     searched = 0
-
-    def search() -> Start | None:
-        """The candidates found in the old map, in order; the start once two consecutive ones agree."""
-        nonlocal last_hit, searched
-        hits = backend.locate([ends for _, _, _, ends in candidates], workers)
-        for (index, at_m, odom, _), hit in zip(candidates, hits, strict=True):
+    for batch in candidates.batches():
+        hits = backend.locate([ends for _, _, _, ends in batch], workers)
+        for (index, at_m, odom, _), hit in zip(batch, hits, strict=True):
             searched += 1
             if hit is None:
                 last_hit = None
@@ -387,38 +432,9 @@ def _find_in(
                 if math.hypot(expected[0] - base[0], expected[1] - base[1]) <= CONFIRM_M + CONFIRM_PER_M * math.hypot(
                     moved[0], moved[1]
                 ) and abs(wrap_angle_scalar(expected[2] - base[2])) <= CONFIRM_RAD + CONFIRM_PER_RAD * abs(moved[2]):
-                    # carried back from the first of the two, the nearer the first scan
+                    # carried back from the first of the two, the nearer the first scan (the first candidate)
                     first, first_odom, first_index, first_m = last_hit
-                    back = compose(inverse(first_odom), np.asarray(odom0, dtype=float))
+                    back = compose(inverse(first_odom), candidates.taken[0][2])
                     return Start(compose(first, back), "found", first_index, first_m, searched)
             last_hit = (base, odom, index, at_m)
-        candidates.clear()
-        return None
-
-    c, s = math.cos(laser_yaw_rad), math.sin(laser_yaw_rad)
-    turned = np.array([[c, s], [-s, c]])  # rows (x, y) @ turned: each turned by the yaw
-    for index, _, odom, ends, _ in scan_stream(log, vehicle):
-        if laser_yaw_rad:
-            ends = ends @ turned
-        if odom0 is None:
-            odom0 = odom
-        else:
-            delta = odometry_delta(last_odom, odom)
-            travel += math.hypot(delta[0], delta[1])
-            turn += abs(delta[2])
-        if travel > SEARCH_TRAVEL_M:
-            break
-        last_odom = odom
-        taken = searched + len(candidates)
-        if taken and travel < taken * CANDIDATE_TRAVEL_M and turn < taken * CANDIDATE_TURN_RAD:
-            continue
-        candidates.append((index, travel, np.asarray(odom, dtype=float), ends))
-        if len(candidates) == CANDIDATES_AT_ONCE:
-            start = search()
-            if start is not None:
-                return start
-    if candidates:
-        start = search()
-        if start is not None:
-            return start
-    return Start(None, "lost", 0, travel, searched)
+    return Start(None, "lost", 0, candidates.travel_m, searched)
