@@ -28,3 +28,24 @@ def test_the_carpark_table_states_the_schedule_the_runs_used():
     text = " ".join(markdown_table([cell], 1, "gslam bench", 1.0).split())
     d = FilterConfig()
     assert f"updated after {d.min_travel_m:g} m or {d.min_turn_rad:g} rad" in text
+
+
+def test_the_initial_spread_holds_on_an_odometry_log(mit_mcap):
+    """`initial_sigma_*` on an odometry log (mit-csail): the particles are moved to the first scan's odometry
+    pose at that scan, each keeping its spread (it was dropped there: every particle started at the one
+    pose whatever the setting)."""
+    import numpy as np
+
+    from gslam.config import FilterConfig
+    from gslam.motion import wrap_angle
+    from pipelines.run.input_log import InputLog
+    from pipelines.run.runner import SlamRunner
+
+    cfg = RunConfig(filter=FilterConfig(initial_sigma_xy_m=0.3, initial_sigma_phi_rad=0.05, loop_closure=False))
+    runner = SlamRunner(InputLog(mit_mcap), cfg)
+    first = next(runner.steps())
+    poses = runner.filter.poses  # the first scan maps an empty map: nothing moves them
+    d = poses - first.odom_pose
+    d[:, 2] = wrap_angle(d[:, 2])
+    assert np.all(np.abs(d.mean(axis=0)) < [0.25, 0.25, 0.04])  # 30 draws: within 4 sd of their mean
+    assert 0.15 < d[:, 0].std() < 0.45 and 0.15 < d[:, 1].std() < 0.45 and 0.025 < d[:, 2].std() < 0.075

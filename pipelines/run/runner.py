@@ -16,7 +16,7 @@ from gslam.config import FilterConfig, check_fields
 from gslam.filter import GSlamFilter, StepResult
 from gslam.initialisation import fit_initial_heading
 from gslam.livebackend import LiveBackEnd
-from gslam.motion import apply_odometry, integrate_ackermann, odometry_delta
+from gslam.motion import apply_odometry, integrate_ackermann, odometry_delta, wrap_angle
 from gslam.scan import Scan, ScanGeometry
 from gslam.se2 import compose
 from gslam.vehicle import VEHICLE_PRESETS
@@ -156,6 +156,19 @@ class SlamRunner:
         self.gps: list[tuple[float, float, float]] = []
         self._turned: ScanGeometry | None = None  # the log's geometry turned by the mounting yaw
 
+    def _place_particles(self, pose: np.ndarray) -> None:
+        """At an odometry log's first scan: the particles moved to `pose` (its odometry, or the start found in
+        a continued map), each keeping its spread around the pose the filter was made at
+        (`initial_sigma_*`, `continue_sigma_*`)."""
+        made_at = np.zeros(3) if self.initial_pose is None else np.asarray(self.initial_pose, dtype=float)
+        poses = self.filter.poses
+        spread = poses - made_at
+        spread[:, 2] = wrap_angle(spread[:, 2])
+        poses[:] = pose
+        if spread.any():  # else the pose as given, bit for bit
+            poses += spread
+            poses[:, 2] = wrap_angle(poses[:, 2])
+
     def _initial_pose(self) -> tuple[np.ndarray | None, float | None]:
         if self.vehicle is None:
             return None, None  # odometry logs start at the first scan's odometry pose
@@ -266,7 +279,7 @@ class SlamRunner:
                     mount = self.mount
                     if odom_prev is None:
                         first = odom_last if self.start is None else self.start
-                        self.filter.poses[:] = laser_poses(mount, first)
+                        self._place_particles(laser_poses(mount, first))
                     else:
                         delta = odometry_delta(odom_prev, odom_last)
                         if mount is None:
