@@ -65,6 +65,11 @@ class FilterConfig:
     """q of a point in observed free space (in front of the return), relative to an unobserved point.
     Points seen as free about 8 times in a row fall below the pruning threshold; a stronger ratio (0.3)
     also erases surfaces seen at grazing angles or with a small pose error, and the matcher suffers."""
+    no_return_free_m: float | None = None
+    """How far a beam without a return (nothing within the sensor's range) observes free space: None, all
+    the way to the maximum range; a length, up to it (Cartographer's missing_data_ray_length; 0: none, as
+    GMapping skips such beams). A thin or dark obstacle the beam passes beside, or an absorbing surface,
+    also gives no return (docs/CHOICES.md, "Maps that go on")."""
     free_space_beams: int = 0
     """A point is in observed free space only when it lies in front of the returns of its beam and of
     this many beams either side (0: its own beam only). Guards surfaces seen at grazing angles, where
@@ -384,6 +389,7 @@ _LIMITS: dict[str, tuple[float, float, bool]] = {
     "hit_ratio": (0, math.inf, False),
     "free_ratio": (0, math.inf, False),
     "free_space_beams": (0, 1000, True),
+    "no_return_free_m": (0, _METRES, True),
     "max_points_per_cell": (0, 1000, True),
     "cell_size_m": (0.01, _CELL_M, True),
     "weight_sigma_m": (0, _METRES, False),

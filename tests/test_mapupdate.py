@@ -56,6 +56,32 @@ def test_points_in_front_of_a_return_lose_probability_and_points_away_from_the_s
     assert np.unique(cells, axis=0).shape[0] == b - a  # at most one point per cell
 
 
+def test_a_beam_without_a_return_clears_free_space_only_as_far_as_no_return_free_m():
+    """`no_return_free_m`: three beams along +x saw nothing within the sensor's 80 m; the middle one returns at
+    30 m elsewhere in the scan's window. A point 10 m out on the empty beams is in free space all the way by
+    default and loses p; with `no_return_free_m` 5 it lies beyond what those beams observe and keeps its p
+    bit for bit, at 20 it loses it again. The numpy path (`wholemap.project`) observes the same points."""
+    from dataclasses import replace
+
+    from gslam.mapupdate.wholemap import project
+    from gslam.pointmap import FlatMaps, PointMap
+
+    geom = ScanGeometry(5, -0.02, 0.01, 80.0)
+    scan = Scan(0.0, np.array([np.inf, np.inf, np.inf, np.inf, 30.0]), geom)
+    xy = np.array([[10.0, 0.0]])
+    p = np.array([0.6])
+    flat = FlatMaps.of([PointMap(xy, p)])
+    for free_m, cleared in ((None, True), (5.0, False), (20.0, True)):
+        cfg = replace(FilterConfig(points_per_observation=1), no_return_free_m=free_m)
+        out_xy, out_p, bounds = _update(xy, p, np.zeros(3), scan, cfg)
+        a, b = bounds[0]
+        kept = out_p[a:b][np.all(np.abs(out_xy[a:b] - xy[0]) < 1e-9, axis=1)]
+        assert len(kept) == 1
+        assert (kept[0] < 0.6) == cleared and (kept[0] == np.float32(0.6)) == (not cleared), (free_m, kept)
+        observed = project(flat, np.zeros((1, 3)), scan, 0, free_m)[3]
+        assert bool(observed[0]) == cleared
+
+
 def test_new_points_are_drawn_around_returns_and_thinned_per_cell():
     geom = ScanGeometry(181, -math.pi / 2, math.pi / 180, 80.0)
     ranges = np.full(181, 4.0)

@@ -29,6 +29,7 @@ OPTIONS = (
     "hit_ratio",
     "free_ratio",
     "free_space_beams",
+    "no_return_free_m",
     "map_update",
     "prune_threshold",
     "prune_relative",
@@ -84,13 +85,14 @@ def point_likelihood_ratio(
 
 
 def project(
-    flat: FlatMaps, poses: np.ndarray, scan: Scan, free_space_beams: int = 0
+    flat: FlatMaps, poses: np.ndarray, scan: Scan, free_space_beams: int = 0, no_return_free_m: float | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Project every point into its owner's scan: (range, beam index, measured range on it, observed mask,
     free-space limit).
 
     A point is observed when it falls inside the field of view and closer than the maximum range. Beams
-    without a return measured free space up to the maximum range. The free-space limit is the shortest
+    without a return measured free space up to the maximum range, or `no_return_free_m` (nearer: points
+    beyond it on such a beam are not observed). The free-space limit is the shortest
     range measured by the point's beam and `free_space_beams` beams either side of it.
     """
     geom = scan.geometry
@@ -107,6 +109,8 @@ def project(
         window = np.lib.stride_tricks.sliding_window_view(padded, 2 * k + 1).min(axis=1)
         free = window[j]
     observed = in_fov & (r < geom.max_range_m)
+    if no_return_free_m is not None:
+        observed &= (z < geom.max_range_m) | (r < no_return_free_m)
     return r, j, z, observed, free
 
 
@@ -263,7 +267,7 @@ class WholeMapUpdate:
         new_owner, new_xy, new_q, _ = draw_new_points(poses, scan, cfg, rng)
         new_prior = interpolate_prior(maps, new_owner, new_xy, cfg) if len(new_owner) else np.empty(0)
         # 3. q of existing points (eq. 6) and the update of eq. 7 over existing and new points.
-        r, j, z, observed, free = project(flat, poses, scan, cfg.free_space_beams)
+        r, j, z, observed, free = project(flat, poses, scan, cfg.free_space_beams, cfg.no_return_free_m)
         q = point_likelihood_ratio(r, z, observed, cfg, free)
         all_q = np.concatenate([q, new_q])
         all_prev = np.concatenate([flat.p, new_prior])

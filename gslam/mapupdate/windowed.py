@@ -109,6 +109,7 @@ def _update_one(
     )
     keep_per_cell = int(params[7])
     far = params[8]
+    no_return_free = params[9]  # how far a beam without a return observes free space (max_range: all the way)
     beams = ranges.shape[0]
     px, py, ph = pose[0], pose[1], pose[2]
     # The window: pose and end points of the returns, grown by the margin.
@@ -148,7 +149,7 @@ def _update_one(
         r = math.sqrt(dx * dx + dy * dy)
         bearing = wrap_angle_scalar(math.atan2(dy, dx) - ph)
         j = int(math.floor((bearing - start_rad) / inc_rad + 0.5))
-        if 0 <= j < beams and r < max_range:
+        if 0 <= j < beams and r < max_range and (ranges[j] < max_range or r < no_return_free):
             p = _logit_update(p, _q(r - ranges[j], hit_sigma, hit_ratio, free_ratio, far))
         cand_xy[n_cand, 0] = x
         cand_xy[n_cand, 1] = y
@@ -371,11 +372,13 @@ def update_maps(
     prior_p0: float,
     max_points_per_cell: int,
     workspace: UpdateWorkspace,
+    no_return_free_m: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Steps 2 to 4 for every particle (see the module docstring).
 
     `ranges_m` (B,) are the occlusion ranges of the scan (the maximum range where a beam saw nothing),
-    `returns` (B,) the beams that returned an observation; `noise` (N, R, M, 2) standard normal draws
+    `returns` (B,) the beams that returned an observation; a beam that saw nothing observes free space up
+    to `no_return_free_m` (None: the maximum range); `noise` (N, R, M, 2) standard normal draws
     for the M new points around each of the R returns (range, bearing). Returns (xy, p, bounds) of the
     new maps: particle i's map is xy[bounds[i, 0]:bounds[i, 1]]. xy and p come from `workspace.take`
     (and may be longer than the maps in them): give them back with `workspace.release` when the maps in
@@ -404,6 +407,7 @@ def update_maps(
             3 * hit_sigma_m,
             max_points_per_cell,
             far_z2(hit_ratio, free_ratio),
+            max_range_m if no_return_free_m is None else min(float(no_return_free_m), max_range_m),
         ]
     )
     out_xy, out_p = workspace.take(int(out_lo[-1]))
@@ -457,6 +461,7 @@ KERNEL_OPTIONS = (
     "cell_size_m",
     "prior_p0",
     "max_points_per_cell",
+    "no_return_free_m",
 )
 """The settings the kernel takes as its parameters (`update_maps`)."""
 OPTIONS = (*KERNEL_OPTIONS, "points_per_observation", "weight_gain", "particles")
