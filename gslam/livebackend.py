@@ -121,7 +121,7 @@ class LiveBackEnd:
         self.most_waiting = 0  # the longest the queue grew
         self._steps: list[int] = []  # the steps of the nodes offered
         self._last_pose: np.ndarray | None = None  # the best particle's pose at the last node
-        self._refreshed_at = 0  # the graph's size at its last `refresh_front`
+        self._refreshed_at = 0  # the nodes offered at the last `refresh_front` the offers asked for
         self._optimised_at = (0, 0)  # (the graph's size, its closures kept) at its last optimisation
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
         self._stopping = False
@@ -145,19 +145,23 @@ class LiveBackEnd:
 
     def offer(self, step: int, pose: np.ndarray, points_xy: Callable[[], np.ndarray], history: History) -> bool:
         """Offer the best particle's `pose` at `step`; when it makes a node (`due`), queue it with its
-        returns (`points_xy()`, sensor frame) and the particle's history at every node (`history`): its
-        motion from the node before, and the front end's poses for `refresh_front` and the gate. Returns
-        whether it made a node. Never waits."""
+        returns (`points_xy()`, sensor frame) and the particle's history (`history`): at the node before,
+        for its motion since; every `refresh_nodes` nodes at every node, the front end's poses for
+        `refresh_front` and the gate (asked for only then: the whole history at every node would cost
+        the square of the nodes). Returns whether it made a node. Never waits."""
         if self._error is not None:
             return False  # the worker failed: the run goes on without the live graph (`stop` says why)
         pose = np.asarray(pose, dtype=float)
         if not self.due(pose):
             return False
         self._steps.append(int(step))
-        belief = history(np.asarray(self._steps))
         self._last_pose = pose.copy()
         self.offered += 1
-        item = (int(step), pose.copy(), np.asarray(points_xy(), dtype=float), belief)
+        refresh = self.offered - self._refreshed_at >= self.refresh_nodes
+        if refresh:
+            self._refreshed_at = self.offered
+        belief = history(np.asarray(self._steps if refresh else self._steps[-2:]))
+        item = (int(step), pose.copy(), np.asarray(points_xy(), dtype=float), belief, refresh)
         if not self._background:
             self._add(*item)
         else:
@@ -185,13 +189,14 @@ class LiveBackEnd:
                 self.correction = None
                 return
 
-    def _add(self, step: int, pose: np.ndarray, points: np.ndarray, belief: np.ndarray) -> None:
+    def _add(self, step: int, pose: np.ndarray, points: np.ndarray, belief: np.ndarray, refresh: bool) -> None:
+        """Add the node (tied to the one before by the history's motion, `belief[-2]` to `pose`); with
+        `refresh`, `belief` holds the history at every node: refresh the front end and judge the gate."""
         t0 = time.perf_counter()
         g = self.graph
         relative = compose(inverse(belief[-2]), pose) if len(belief) > 1 else None
         g.add_node(step, pose, points, relative)
-        if len(g) - self._refreshed_at >= self.refresh_nodes:
-            self._refreshed_at = len(g)
+        if refresh:
             g.refresh_front(belief)
             self._judge(belief)
         self._worker_s += time.perf_counter() - t0
