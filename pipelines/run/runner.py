@@ -140,9 +140,9 @@ class SlamRunner:
         else:
             self.initial_pose, self.t_init_s = self._initial_pose()
         self.min_range_m = cfg.filter.min_range_m if cfg.filter.min_range_m is not None else log.self_return_range_m
-        self.filter = make_filter(
-            cfg, np.zeros(3) if self.initial_pose is None else self.initial_pose, log.self_return_range_m
-        )
+        self._made_at = np.zeros(3) if self.initial_pose is None else np.asarray(self.initial_pose, dtype=float)
+        """The pose the filter's particles start from (spread round it by `initial_sigma_*`)."""
+        self.filter = make_filter(cfg, self._made_at, log.self_return_range_m)
         self.mount = log.mount
         fcfg = cfg.filter
         self.live: LiveBackEnd | None = None
@@ -158,11 +158,9 @@ class SlamRunner:
 
     def _place_particles(self, pose: np.ndarray) -> None:
         """At an odometry log's first scan: the particles moved to `pose` (its odometry, or the start found in
-        a continued map), each keeping its spread around the pose the filter was made at
-        (`initial_sigma_*`, `continue_sigma_*`)."""
-        made_at = np.zeros(3) if self.initial_pose is None else np.asarray(self.initial_pose, dtype=float)
+        a continued map), each keeping its spread around the pose the filter was made at (`initial_sigma_*`)."""
         poses = self.filter.poses
-        spread = poses - made_at
+        spread = poses - self._made_at
         spread[:, 2] = wrap_angle(spread[:, 2])
         poses[:] = pose
         if spread.any():  # else the pose as given, bit for bit
