@@ -52,6 +52,30 @@ def test_messages_come_in_the_library_order(tmp_path, overlapping, topics):
     assert times == sorted(times)
 
 
+@pytest.mark.parametrize("overlapping", [False, True])
+def test_select_passes_over_the_others_in_the_same_order(tmp_path, overlapping):
+    """`messages(topics, select)`: the n-th message of `topics` is yielded when `select(n)` is true, n counted
+    in the order of the whole read, in both the chunk-by-chunk and the library's merged reading."""
+    rng = np.random.default_rng(5)
+    t = 10.0 + np.cumsum(rng.integers(0, 3, 300)) * 0.01
+    if overlapping:
+        t = t + rng.normal(0, 0.2, t.size)
+    items = [(float(x), ["/a", "/b"][k]) for x, k in zip(t, rng.integers(0, 2, t.size), strict=True)]
+    path = tmp_path / "m.mcap"
+    _write(path, items, chunk_size=512)
+    every = [(m.log_time_ns, m.value) for m in McapInput(path).messages(["/a"])]
+    wanted = {0, 1, 7, 50, 51, 52, len(every) - 1}
+    asked = []
+
+    def select(n):
+        asked.append(n)
+        return n in wanted
+
+    picked = [(m.log_time_ns, m.value) for m in McapInput(path).messages(["/a"], select)]
+    assert picked == [every[n] for n in sorted(wanted)]
+    assert asked == list(range(len(every)))  # asked once each, in order
+
+
 def test_a_damaged_chunk_raises(tmp_path):
     path = tmp_path / "m.mcap"
     _write(path, [(i * 0.1, "/a") for i in range(200)], chunk_size=512)

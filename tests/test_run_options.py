@@ -49,3 +49,26 @@ def test_the_initial_spread_holds_on_an_odometry_log(mit_mcap):
     d[:, 2] = wrap_angle(d[:, 2])
     assert np.all(np.abs(d.mean(axis=0)) < [0.25, 0.25, 0.04])  # 30 draws: within 4 sd of their mean
     assert 0.15 < d[:, 0].std() < 0.45 and 0.15 < d[:, 1].std() < 0.45 and 0.025 < d[:, 2].std() < 0.075
+
+
+def test_a_run_end_reads_its_scans_again_by_number(mit_mcap):
+    """`InputLog.scans_at`: the scans numbered, the ones between passed over undecoded, as the run read them;
+    a number past the input's end is the wrong input, said in one line."""
+    import numpy as np
+    import pytest
+
+    from pipelines.errors import InputError
+    from pipelines.run.input_log import InputLog
+
+    log = InputLog(mit_mcap)
+    every = {ev.index: ev for ev in log.events(scans_only=True) if ev.index < 400}
+    wanted = [0, 1, 2, 57, 58, 200, 399]
+    done = []
+    again = list(log.scans_at(wanted, lambda k, total: done.append((k, total))))
+    assert [ev.index for ev in again] == wanted
+    for ev in again:
+        np.testing.assert_array_equal(ev.ranges_m, every[ev.index].ranges_m)
+        assert ev.t_s == every[ev.index].t_s and ev.stamp_s == every[ev.index].stamp_s
+    assert done[-1] == (400, 400)
+    with pytest.raises(InputError, match=f"needs scan {log.scan_count} but the input has {log.scan_count} scans"):
+        list(log.scans_at([5, log.scan_count]))

@@ -160,25 +160,30 @@ class InputLog:
         self, indices: Sequence[int], progress: Callable[[int, int], None] | None = None
     ) -> Iterator[ScanEvent]:
         """The input's scans number `indices` (increasing), read again (a run's scans, once it is over: to
-        place them, to cast them into a grid). `progress(done, total)` counts the scans read. InputError
-        when the input ends before the last of them (not the run's input)."""
-        total = int(indices[-1]) + 1 if len(indices) else 0
-        wanted = iter(indices)
-        j = next(wanted, None)
-        k = -1
-        for ev in self.events(scans_only=True):
-            if j is None:
-                return
-            k = ev.index
+        place them, to cast them into a grid); the scans between them are passed over undecoded.
+        `progress(done, total)` counts the scans read. InputError when the input ends before the last of
+        them (not the run's input)."""
+        if not len(indices):
+            return
+        wanted = {int(i) for i in indices}
+        last = int(indices[-1])
+        at = -1  # the index of the scan read last
+
+        def select(n: int) -> bool:
+            nonlocal at
+            at = n
+            return n in wanted
+
+        for ev in converted(self.mcap, [ch.LASER], self._event, select):
+            ev.index = at
             if progress is not None:
-                progress(min(k + 1, total), total)
-            if k == j:
-                yield ev
-                j = next(wanted, None)
-        if j is not None:
-            raise InputError(
-                f"{self.path}: the run needs scan {int(j)} but the input has {k + 1} scans; is this the run's input?"
-            )
+                progress(at + 1, last + 1)
+            yield ev
+            if at >= last:
+                return
+        raise InputError(
+            f"{self.path}: the run needs scan {last} but the input has {at + 1} scans; is this the run's input?"
+        )
 
     def read_all(self, topic: str) -> list[Message]:
         return list(converted(self.mcap, [topic], lambda m: m))
@@ -228,11 +233,20 @@ def _finite(*values: Any) -> list[float]:
 T = TypeVar("T")
 
 
-def converted(mcap: McapInput, topics: list[str], convert: Callable[[Message], T]) -> Iterator[T]:
-    """`convert(msg)` for each message of `topics` in log-time order. A damaged file, or a message that
+def converted(
+    mcap: McapInput, topics: list[str], convert: Callable[[Message], T], select: Callable[[int], bool] | None = None
+) -> Iterator[T]:
+    """`convert(msg)` for each message of `topics` in log-time order (those `select(n)` approves of, n the
+    message's index among them, where given: `McapInput.messages`). A damaged file, or a message that
     `convert` cannot read, raises InputError naming the file, the message's index and its topic."""
-    it = mcap.messages(topics)
-    n = 0
+    n = 0  # the index of the message being read
+
+    def counted(k: int) -> bool:
+        nonlocal n
+        n = k
+        return select(k)
+
+    it = mcap.messages(topics, None if select is None else counted)
     while True:
         try:
             msg = next(it)
@@ -245,4 +259,5 @@ def converted(mcap: McapInput, topics: list[str], convert: Callable[[Message], T
         except (AttributeError, IndexError, KeyError, TypeError, ValueError) as e:
             raise InputError(f"{mcap.path}: message {n} on {msg.topic} is malformed ({e})") from None
         yield out
-        n += 1
+        if select is None:
+            n += 1
