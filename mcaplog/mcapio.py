@@ -204,7 +204,7 @@ class McapInput:
     ) -> Iterator[Message]:
         """Messages of `topics` (all when None) in log-time order, decoded. `select(n)`: whether the n-th of
         them (from 0, in that order) is decoded and yielded; the others are passed over undecoded, which
-        costs a fraction of decoding them (a run's end reads back every tenth scan of its input).
+        costs a fraction of decoding them (a run's end reads back some of its input's scans: `InputLog.scans_at`).
 
         The order is the mcap library's (log time, then position in the file). When the file's chunks
         follow one another in time, as every chunk of a file written in time order does, each chunk is
