@@ -69,7 +69,7 @@ class FilterConfig:
     """How far a beam without a return (nothing within the sensor's range) observes free space: None, all
     the way to the maximum range; a length, up to it (Cartographer's missing_data_ray_length; 0: none, as
     GMapping skips such beams). A thin or dark obstacle the beam passes beside, or an absorbing surface,
-    also gives no return (docs/CHOICES.md, "Maps that go on")."""
+    also gives no return (docs/CHOICES.md, "Beams without a return")."""
     free_space_beams: int = 0
     """A point is in observed free space only when it lies in front of the returns of its beam and of
     this many beams either side (0: its own beam only). Guards surfaces seen at grazing angles, where
