@@ -150,13 +150,14 @@ def match_scan(submap: Submap, points_xy: np.ndarray, estimate: np.ndarray, sett
     floor = max(settings.min_score, settings.ambiguity_ratio * score)
     rival, b, _, _ = _branch_and_bound(*args, floor, dx, dy, apart)
     pose = np.array([estimate[0] + dx * submap.cell_m, estimate[1] + dy * submap.cell_m, headings[a]])
-    refined = _refine(submap.pyramid[0], submap.origin_xy[0], submap.origin_xy[1], submap.cell_m, points_xy, pose)
-    refined_score = _mean_field(
-        submap.pyramid[0], submap.origin_xy[0], submap.origin_xy[1], submap.cell_m, points_xy, refined
-    )
+    field = (submap.pyramid[0], submap.origin_xy[0], submap.origin_xy[1], submap.cell_m, points_xy)
+    refined = _refine(*field, pose)
     other = float(rival) if b >= 0 else None
-    if refined_score >= score and np.hypot(*(refined[:2] - pose[:2])) < 2 * submap.cell_m:
-        return Match(refined, float(refined_score), other)
+    # the search scores a return by its cell's value, the refinement between cell centres: the two poses
+    # are compared on the refinement's interpolated field, the score stays the search's
+    near = np.hypot(*(refined[:2] - pose[:2])) < 2 * submap.cell_m
+    if near and _mean_field(*field, refined) >= _mean_field(*field, pose):
+        return Match(refined, float(score), other)
     return Match(pose, float(score), other)
 
 

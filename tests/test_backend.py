@@ -226,3 +226,18 @@ def test_branch_and_bound_finds_the_best_pose_on_the_grid(ring):
                 best = max(best, float(submap.pyramid[0][ij[inside, 0], ij[inside, 1]].sum() / len(pts)))
     assert match.score >= best - 1e-6  # the field is float32: sums in another order differ by ~1e-7
     assert _mean_field(submap.pyramid[0], *submap.origin_xy, settings.cell_m, pts, match.pose) >= 0.9
+
+
+def test_a_match_off_the_search_grid_is_refined_to_the_truth(ring):
+    """Where the truth lies between the search's grid poses (offsets that are no multiple of its 5 cm
+    cells), the refinement, not the grid, gives the match: within 5 mm of the truth at every offset,
+    where the nearest grid pose is up to 2.5 cm off per axis."""
+    truth, scans = ring
+    settings = ClosureSettings(window_m=0.6, window_rad=0.05)
+    submap = Submap.build(np.vstack([transform_points(truth[k], scans[k]) for k in range(0, 8)]), settings)
+    pose, pts = truth[4], scans[4][::3]
+    for offset in ([0.337, -0.213, 0.03], [-0.121, 0.262, -0.02], [0.018, 0.041, 0.01], [0.226, 0.112, 0.0]):
+        match = match_scan(submap, pts, pose + offset, settings)
+        assert match is not None
+        assert math.hypot(*(match.pose[:2] - pose[:2])) < 0.005, offset
+        assert abs(match.pose[2] - pose[2]) < math.radians(0.1), offset
