@@ -232,6 +232,16 @@ class FilterConfig:
     than a grid whose cells average every hit: half GMapping's 1 m (docs/CHOICES.md)."""
     min_turn_rad: float = 0.5
     """Turn between updates (GMapping's angularUpdate)."""
+    recheck_ratio: float = 0.5
+    """An update whose match moves the particles (their median) further from the noise-free motion since the
+    last update than recheck_ratio x that motion + recheck_travel_m (in travel; in turn, x the turn +
+    recheck_turn_rad) says the motion went wrong there (a slip, odometry that counts a reversal forward):
+    the next update then comes after recheck_travel_m or recheck_turn_rad instead, and so on until a match
+    agrees with the motion again. Where the odometry holds nothing changes. 0: off (docs/CHOICES.md)."""
+    recheck_travel_m: float = 0.1
+    """Travel between updates while the motion is rechecked (recheck_ratio)."""
+    recheck_turn_rad: float = 0.1
+    """Turn between updates while the motion is rechecked (recheck_ratio)."""
     fill_skipped: FillSkipped = "odometry"
     """Poses recorded for the scans the travel schedule skips: "odometry", each particle's last updated
     pose moved by the noise-free motion (as GMapping fills them); "sampled", the motion-model samples
@@ -426,6 +436,9 @@ _LIMITS: dict[str, tuple[float, float, bool]] = {
     "proposal_sigma_phi_rad": (0, _RADIANS, True),
     "min_travel_m": (0, _METRES, True),
     "min_turn_rad": (0, _RADIANS, True),
+    "recheck_ratio": (0, 1_000, True),
+    "recheck_travel_m": (0, _METRES, True),
+    "recheck_turn_rad": (0, _RADIANS, True),
     "place_step_xy_m": (0, _CELL_M, False),
     "place_step_phi_rad": (0, _RADIANS, False),
     "place_levels": (0, 30, True),

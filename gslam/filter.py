@@ -86,6 +86,9 @@ class GSlamFilter:
         self._last_update_pose: np.ndarray | None = None
         self._filled = self.poses.copy()  # noise-free motion since the last update (recorded for skipped scans)
         self._travel_m = 0.0  # path length and turn of the noise-free motion since the last update
+        self._recheck = False  # the last update's match disagreed with the motion (recheck_ratio)
+        self.rechecked_updates = 0
+        """Updates that came early, after recheck_travel_m or recheck_turn_rad (recheck_ratio)."""
         self._turn_rad = 0.0
         self._fit_reference = 0.0  # median fit (score per return) of the previous update's matches
         self.heading_noise_scale = 1.0
@@ -272,9 +275,25 @@ class GSlamFilter:
         along the way from the odometry or controls without noise, reaches min_travel_m of path or
         min_turn_rad of turning (GMapping's linearUpdate / angularUpdate): the decision depends on how
         the vehicle moved, not on the particles' noise."""
-        if self.cfg.update_schedule == "every_scan" or self._last_update_pose is None:
+        cfg = self.cfg
+        if cfg.update_schedule == "every_scan" or self._last_update_pose is None:
             return True
-        return self._travel_m >= self.cfg.min_travel_m or self._turn_rad >= self.cfg.min_turn_rad
+        if self._recheck:
+            return self._travel_m >= cfg.recheck_travel_m or self._turn_rad >= cfg.recheck_turn_rad
+        return self._travel_m >= cfg.min_travel_m or self._turn_rad >= cfg.min_turn_rad
+
+    def _disagrees(self) -> bool:
+        """`recheck_ratio`: the update's matched poses (the particles' median) moved further from the
+        noise-free motion since the last update than the motion itself can be off where the odometry holds."""
+        cfg = self.cfg
+        if cfg.recheck_ratio <= 0 or cfg.update_schedule == "every_scan":
+            return False
+        shift = float(np.median(np.hypot(*(self.poses[:, :2] - self._filled[:, :2]).T)))
+        turn = float(np.median(np.abs(wrap_angle(self.poses[:, 2] - self._filled[:, 2]))))
+        return (
+            shift > cfg.recheck_ratio * self._travel_m + cfg.recheck_travel_m
+            or turn > cfg.recheck_ratio * self._turn_rad + cfg.recheck_turn_rad
+        )
 
     def _as_observed(self, scan: Scan) -> Scan:
         """The scan as the filter observes it: returns nearer than min_range_m or beyond usable_range_m
@@ -332,8 +351,11 @@ class GSlamFilter:
                 self._points_total,
                 0,
             )
+        if self._recheck and not self._travel_m >= cfg.min_travel_m and not self._turn_rad >= cfg.min_turn_rad:
+            self.rechecked_updates += 1
         layout = self._layout if self._layout is not None else distinct_maps(self.maps)
         matched, matched_log_like = self._match_and_weigh(scan, layout)
+        recheck = self._disagrees()
         if cfg.motion_noise_adaptive and 2 * matched >= cfg.particles:
             self._adapt_heading_noise()
         # 2 to 5. New points, the update of eq. 7, pruning; the importance factors.
@@ -368,6 +390,7 @@ class GSlamFilter:
         self._heading_noise = np.zeros(len(self.poses))
         self._filled = self.poses.copy()
         self._travel_m = self._turn_rad = 0.0
+        self._recheck = recheck
         self._points_total = sum(len(m) for m in self.maps)  # until the next update
         self.steps += 1
         return result

@@ -390,6 +390,7 @@ def _result_metadata(run: _OpenRun, times: _StepTimes, summary: ProcessSummary) 
         "ms_per_step_filter_median": summary.ms_per_step_filter_median,
         "ms_per_step_filter_mean": summary.ms_per_step_filter_mean,
         "updates": summary.updates,
+        "rechecked_updates": getattr(run.runner.filter, "rechecked_updates", None),
         "ms_per_update_mean": summary.ms_per_update_mean,
         "ms_per_step_mean": summary.ms_per_step_mean,
         "wall_s": times.wall_s,

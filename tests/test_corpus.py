@@ -87,6 +87,35 @@ def test_a_corrupted_log_is_ingested_with_its_relations(tmp_path):
     np.testing.assert_allclose(again.poses, odom, atol=1e-6)
 
 
+def test_radish_logs_beyond_the_corpus_are_found_and_written_like_its_own(tmp_path):
+    """Any other `NAME-corrected.log.gz` beside the corpus's four is run the same way (logs outside the
+    corpus, for the same rule); one named like a Freiburg log keeps apart from it."""
+    import gzip
+
+    from pipelines.bench.corpus import RADISH_LOGS, build_corpus, radish_logs
+    from pipelines.bench.dispatch import corpus_logs
+
+    folder = tmp_path / "datasets" / "radish"
+    folder.mkdir(parents=True)
+    poses = _loop(40)
+    text = "".join(
+        f"FLASER 3 4.0 4.1 4.2 {x:.4f} {y:.4f} {th:.4f} {x:.4f} {y:.4f} {th:.4f} {k}.0 h {k}.0\n"
+        for k, (x, y, th) in enumerate(poses)
+    )
+    for name in ("orebro", "intel", "aces"):
+        with gzip.open(folder / f"{name}-corrected.log.gz", "wt") as f:
+            f.write(text)
+    (folder / "notes.txt").write_text("not a log")
+    names = radish_logs(tmp_path / "datasets")
+    assert names == (*RADISH_LOGS, "aces", "intel-corrected", "orebro")
+    assert radish_logs(tmp_path / "nowhere") == RADISH_LOGS
+    assert corpus_logs("orebro,intel-corrected", tmp_path / "datasets") == ["orebro", "intel-corrected"]
+    corpus = build_corpus(tmp_path / "datasets", tmp_path / "work", 0)
+    assert [c.name for c in corpus] == ["aces", "intel-corrected", "orebro"]  # the four are absent here
+    assert all(c.scans == 40 and c.log.with_suffix(".relations").exists() for c in corpus)
+    assert corpus[1].log.name == "intel-corrected-s0.clf"
+
+
 def test_the_verdict_is_the_issues_bar():
     from pathlib import Path
 

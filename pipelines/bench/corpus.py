@@ -39,6 +39,7 @@ from gslam.se2 import compose, inverse
 
 FREIBURG_LOGS = ("mit-csail", "intel", "fr079")
 RADISH_LOGS = ("belgioioso", "edmonton", "seattle", "freiburg-campus")
+CORRECTED_SUFFIX = "-corrected.log.gz"
 SCAN_PERIOD_S = 1.0
 """The clock given to the Radish scans (their own stamps are zero or repeated): one scan a second."""
 
@@ -203,18 +204,34 @@ def write_corrupted(
     return out, odom
 
 
+def radish_logs(datasets: Path) -> tuple[str, ...]:
+    """The Radish logs of the corpus: the four of `../shared/datasets` (RADISH_LOGS), then any other
+    `NAME-corrected.log.gz` in `datasets/radish`, by name (e.g. the other nine of the same collection,
+    acschaefer/ple's data/carmen), so that logs outside the corpus are run the same way. One whose name is a
+    Freiburg log's is called `NAME-corrected`."""
+    folder = datasets / "radish"
+    files = folder.glob(f"*{CORRECTED_SUFFIX}") if folder.is_dir() else []
+    found = sorted(p.name[: -len(CORRECTED_SUFFIX)] for p in files)
+    more = [name for name in found if name not in RADISH_LOGS]
+    return RADISH_LOGS + tuple(f"{name}-corrected" if name in FREIBURG_LOGS else name for name in more)
+
+
 def build_corpus(
-    datasets: Path, workdir: Path, seed: int = 0, radish: tuple[str, ...] = RADISH_LOGS
+    datasets: Path, workdir: Path, seed: int = 0, radish: tuple[str, ...] | None = None
 ) -> list[CorpusLog]:
-    """The corpus in `workdir`: the Freiburg logs by path, the Radish logs written with corrupted odometry
-    (odometry seed `seed`). Logs whose files are absent are left out (the caller says which)."""
+    """The corpus in `workdir`: the Freiburg logs by path, the Radish logs (`radish`, by default
+    `radish_logs(datasets)`) written with corrupted odometry (odometry seed `seed`). Logs whose files are
+    absent are left out (the caller says which)."""
+    if radish is None:
+        radish = radish_logs(datasets)
     corpus: list[CorpusLog] = []
     for name in FREIBURG_LOGS:
         log = datasets / "freiburg" / f"{name}.clf.gz"
         if log.exists():
             corpus.append(CorpusLog(name, log, 0, float("nan"), "real odometry"))
     for name in radish:
-        src = datasets / "radish" / f"{name}-corrected.log.gz"
+        base = name.removesuffix("-corrected") if name.removesuffix("-corrected") in FREIBURG_LOGS else name
+        src = datasets / "radish" / f"{base}{CORRECTED_SUFFIX}"
         if not src.exists():
             continue
         corrected = read_corrected(src)

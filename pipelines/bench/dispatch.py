@@ -39,9 +39,9 @@ class BenchRequest:
 def corpus_logs(logs: str | None, datasets: Path, more: tuple[str, ...] = ()) -> list[str] | None:
     """The corpus logs `--logs` names (None: all), checked against the corpus and the suite's `more` logs;
     and `--datasets` checked."""
-    from pipelines.bench.corpus import FREIBURG_LOGS, RADISH_LOGS
+    from pipelines.bench.corpus import FREIBURG_LOGS, radish_logs
 
-    known = [*FREIBURG_LOGS, *RADISH_LOGS, *more]
+    known = [*FREIBURG_LOGS, *radish_logs(datasets), *more]
     only = [name.strip() for name in logs.split(",") if name.strip()] if logs else None
     unknown = sorted(set(only or []) - set(known))
     if unknown:
@@ -132,7 +132,7 @@ def _robustness(request: BenchRequest, echo: Callable[[str], None]) -> str:
 
 
 def _localise(request: BenchRequest, echo: Callable[[str], None]) -> str:
-    from pipelines.bench.corpus import FREIBURG_LOGS, RADISH_LOGS, build_corpus
+    from pipelines.bench.corpus import FREIBURG_LOGS, build_corpus, radish_logs
     from pipelines.bench.localise import localise_section, run_localise_bench
     from pipelines.bench.suites import ingest_to
 
@@ -141,7 +141,7 @@ def _localise(request: BenchRequest, echo: Callable[[str], None]) -> str:
         # the corpus of the robustness suite: the Freiburg logs (real odometry) and the Radish logs with
         # odometry corrupted (odometry seed 0)
         corpus = [c for c in build_corpus(request.datasets, Path(tmp), 0) if only is None or c.name in only]
-        missing = sorted(set(only or FREIBURG_LOGS + RADISH_LOGS) - {c.name for c in corpus})
+        missing = sorted(set(only or FREIBURG_LOGS + radish_logs(request.datasets)) - {c.name for c in corpus})
         if missing:
             echo(f"--datasets {request.datasets}: {', '.join(missing)} not found; left out")
         if not corpus:
