@@ -279,8 +279,12 @@ class GSlamFilter:
         if cfg.update_schedule == "every_scan" or self._last_update_pose is None:
             return True
         if self._recheck:
-            return self._travel_m >= cfg.recheck_travel_m or self._turn_rad >= cfg.recheck_turn_rad
-        return self._travel_m >= cfg.min_travel_m or self._turn_rad >= cfg.min_turn_rad
+            return self._travelled(cfg.recheck_travel_m, cfg.recheck_turn_rad)
+        return self._travelled(cfg.min_travel_m, cfg.min_turn_rad)
+
+    def _travelled(self, travel_m: float, turn_rad: float) -> bool:
+        """The noise-free motion since the last update reached travel_m of path or turn_rad of turning."""
+        return self._travel_m >= travel_m or self._turn_rad >= turn_rad
 
     def _disagrees(self) -> bool:
         """`recheck_ratio`: the update's matched poses (the particles' median) moved further from the
@@ -351,7 +355,7 @@ class GSlamFilter:
                 self._points_total,
                 0,
             )
-        if self._recheck and not self._travel_m >= cfg.min_travel_m and not self._turn_rad >= cfg.min_turn_rad:
+        if self._recheck and not self._travelled(cfg.min_travel_m, cfg.min_turn_rad):
             self.rechecked_updates += 1
         layout = self._layout if self._layout is not None else distinct_maps(self.maps)
         matched, matched_log_like = self._match_and_weigh(scan, layout)

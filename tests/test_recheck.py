@@ -16,7 +16,7 @@ import pytest
 from worlds import corridor_world, simulate_robot_loop
 
 from gslam.config import FilterConfig
-from gslam.filter import GSlamFilter
+from gslam.filter import GSlamFilter, StepResult
 from gslam.motion import apply_odometry, odometry_delta
 from gslam.scan import Scan, ScanGeometry
 
@@ -41,11 +41,12 @@ def _reversing_log():
     return truth, np.array(odometry), ranges, geom, k + BACK
 
 
-def _run(**options) -> tuple[np.ndarray, np.ndarray, int, int]:
-    truth, odometry, ranges, geom, back = _reversing_log()
-    cfg = FilterConfig(particles=16, seed=0, **options)
-    flt = GSlamFilter(cfg, truth[0])
-    online, updates = [], 0
+def _drive(start, t_s, odometry, ranges, geom, **options) -> list[StepResult]:
+    """Each scan's step result, the filter (FilterConfig with `options`, seed 0) started at `start` and
+    moved by the odometry between scans."""
+    cfg = FilterConfig(**{"particles": 16, "seed": 0, **options})
+    flt = GSlamFilter(cfg, start)
+    results = []
     for k in range(len(ranges)):
         predict = None
         if k:
@@ -54,10 +55,15 @@ def _run(**options) -> tuple[np.ndarray, np.ndarray, int, int]:
             def predict(poses, rng, delta=delta):
                 return apply_odometry(poses, delta, rng, cfg.odom_sigma)
 
-        result = flt.step(Scan(float(k) * 0.2, ranges[k], geom), predict)
-        online.append(result.best_pose)
-        updates += result.updated
-    return np.array(online), truth, back, updates
+        results.append(flt.step(Scan(float(t_s[k]), ranges[k], geom), predict))
+    return results
+
+
+def _run(**options) -> tuple[np.ndarray, np.ndarray, int, int]:
+    truth, odometry, ranges, geom, back = _reversing_log()
+    results = _drive(truth[0], np.arange(len(ranges)) * 0.2, odometry, ranges, geom, **options)
+    online = np.array([r.best_pose for r in results])
+    return online, truth, back, sum(r.updated for r in results)
 
 
 @pytest.fixture(scope="module")
@@ -83,17 +89,11 @@ def test_where_the_odometry_holds_the_schedule_is_the_travels():
     """On the loop without the reversal no match disagrees: the very same updates as without the recheck."""
     sim = simulate_robot_loop(corridor_world(), np.random.default_rng(4), laps=0.3, speed_mps=0.5)
     geom = ScanGeometry(len(sim.ranges[0]), sim.start_angle_rad, sim.angle_increment_rad, sim.max_range_m)
-    runs = []
-    for ratio in (0.5, 0.0):
-        cfg = FilterConfig(particles=8, seed=0, recheck_ratio=ratio)
-        flt = GSlamFilter(cfg, sim.truth[0])
-        updated = []
-        for k in range(len(sim.t_s)):
-            delta = odometry_delta(sim.odometry[k - 1], sim.odometry[k]) if k else None
-
-            def predict(poses, rng, delta=delta, sigma=cfg.odom_sigma):
-                return apply_odometry(poses, delta, rng, sigma)
-
-            updated.append(flt.step(Scan(sim.t_s[k], sim.ranges[k], geom), predict if k else None).updated)
-        runs.append(updated)
+    runs = [
+        [
+            r.updated
+            for r in _drive(sim.truth[0], sim.t_s, sim.odometry, sim.ranges, geom, particles=8, recheck_ratio=ratio)
+        ]
+        for ratio in (0.5, 0.0)
+    ]
     assert runs[0] == runs[1]

@@ -216,6 +216,13 @@ def radish_logs(datasets: Path) -> tuple[str, ...]:
     return RADISH_LOGS + tuple(f"{name}-corrected" if name in FREIBURG_LOGS else name for name in more)
 
 
+def _radish_source(datasets: Path, name: str) -> Path:
+    """The corrected log behind the corpus name `name`: the inverse of `radish_logs`' renaming (a name
+    that clashes with a Freiburg log's is called `NAME-corrected`)."""
+    base = name.removesuffix("-corrected")
+    return datasets / "radish" / f"{base if base in FREIBURG_LOGS else name}{CORRECTED_SUFFIX}"
+
+
 def build_corpus(
     datasets: Path, workdir: Path, seed: int = 0, radish: tuple[str, ...] | None = None
 ) -> list[CorpusLog]:
@@ -230,8 +237,7 @@ def build_corpus(
         if log.exists():
             corpus.append(CorpusLog(name, log, 0, float("nan"), "real odometry"))
     for name in radish:
-        base = name.removesuffix("-corrected") if name.removesuffix("-corrected") in FREIBURG_LOGS else name
-        src = datasets / "radish" / f"{base}{CORRECTED_SUFFIX}"
+        src = _radish_source(datasets, name)
         if not src.exists():
             continue
         corrected = read_corrected(src)
