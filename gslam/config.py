@@ -165,6 +165,12 @@ class FilterConfig:
     match_coarse_depth: int = 1
     """Levels of the coarse start's pyramid, each match_coarse_factor times coarser than the one below: the
     climb starts on the coarsest from the motion sample and descends (1: one level, 0.2 m cells)."""
+    match_coarse_deeper_travel_m: float = 3.0
+    """Where the noise-free travel since the last update reaches this, the coarse start's pyramid has one
+    level more than match_coarse_depth (0.8 m cells): the error the odometry carries grows with the motion
+    (a slip reports 1.2 to 2x), and beyond about a metre of error a scan is out of the 0.2 m raster's basin
+    along a corridor. Updates come every min_travel_m, so only logs whose scans lie metres apart reach it;
+    at 2 m the deeper raster took look-alikes at the Freiburg campus's slips (docs/CHOICES.md). 0: never."""
     match_coarse_stride: int = 1
     """The coarse climb uses every k-th of the climb's returns (1: all of them). Every 2nd was cheaper by
     little and broke a loop on the Freiburg campus (docs/CHOICES.md)."""
@@ -410,6 +416,7 @@ _LIMITS: dict[str, tuple[float, float, bool]] = {
     "match_coarse_stride": (1, 10_000, True),
     "match_coarse_gate": (0, 64, True),
     "match_coarse_depth": (1, 4, True),
+    "match_coarse_deeper_travel_m": (0, _METRES, True),
     "prior_neighbours": (1, 64, True),
     "prior_radius_m": (0, _CELL_M, False),
     "prior_p0": (0, math.inf, False),

@@ -286,6 +286,11 @@ class GSlamFilter:
         """The noise-free motion since the last update reached travel_m of path or turn_rad of turning."""
         return self._travel_m >= travel_m or self._turn_rad >= turn_rad
 
+    def _travelled_far(self) -> int:
+        """1 where the noise-free travel since the last update reaches match_coarse_deeper_travel_m."""
+        far = self.cfg.match_coarse_deeper_travel_m
+        return int(far > 0 and self._travel_m >= far)
+
     def _disagrees(self) -> bool:
         """`recheck_ratio`: the update's matched poses (the particles' median) moved further from the
         noise-free motion since the last update than the motion itself can be off where the odometry holds."""
@@ -446,7 +451,7 @@ class GSlamFilter:
             coarse_levels=cfg.match_coarse_levels,
             coarse_stride=cfg.match_coarse_stride,
             coarse_min_gain=cfg.match_coarse_min_gain,
-            coarse_depth=cfg.match_coarse_depth,
+            coarse_depth=cfg.match_coarse_depth + self._travelled_far(),
             coarse_gate=cfg.match_coarse_gate,
             coarse_reference=self._fit_reference,
             **args,
