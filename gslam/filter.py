@@ -155,7 +155,10 @@ class GSlamFilter:
 
         anchored = np.asarray(self._updated, dtype=bool)
         motion = np.asarray(self._motion, dtype=float).reshape(-1, 3)
-        placement = place_scans(xy, p, recorded, ends, settings, limits, anchored, workers, progress, motion, times)
+        search = MatchSettings.from_config(cfg)
+        placement = place_scans(
+            xy, p, recorded, ends, settings, limits, anchored, workers, progress, motion, times, search
+        )
         self.placed = (times, placement.poses)
         return placement
 

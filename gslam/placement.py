@@ -110,6 +110,7 @@ def place_scans(
     progress: Callable[[int, int], None] | None = None,
     motion: np.ndarray | None = None,
     times: np.ndarray | None = None,
+    search: MatchSettings | None = None,
 ) -> Placement:
     """Match each scan against the map (`map_xy`, `map_p`) and return the placed trajectory; the scans
     whose match is not kept are placed between matched neighbours. `scans(a, b)` gives the scans a to
@@ -128,9 +129,10 @@ def place_scans(
 
     A scan whose match is not kept, or whose motion breaks from its neighbours', is matched once more from
     the pose between the matched scans around it, interpolated by its time (`times`, T; None: by its
-    index), and the better of its two matches kept: the start from the scan before fails where the motion
-    does (an odometry reading lost for one scan, then caught up at the next), and along a corridor or a
-    road such a wrong start can still match."""
+    index), and from that heading and position mixed with the two scans' own (`_second_starts`), with the
+    `search` matcher (None: `match`; the filter passes the update's), and the best of its matches kept:
+    the start from the scan before fails where the motion does (an odometry reading lost for one scan,
+    then caught up at the next), and along a corridor or a road such a wrong start can still match."""
     recorded = np.asarray(recorded, dtype=float).reshape(-1, 3)
     n = len(recorded)
     path = recorded if motion is None else dead_reckoned(recorded[0], motion)
@@ -161,7 +163,7 @@ def place_scans(
         with ThreadPoolExecutor(len(cuts) - 1) as pool:
             for f in [pool.submit(run, part) for part in range(len(cuts) - 1)]:
                 f.result()
-    _place_again_between(tiles, poses, how, fit, unplaced, suspect, match, limits, times)
+    _place_again_between(tiles, poses, how, fit, unplaced, suspect, match if search is None else search, limits, times)
     if progress is not None:
         progress(n, n)
     return Placement(between_matched(path, poses, how == PLACED), how)
@@ -219,16 +221,36 @@ def _place_again_between(
     span = clock[ib] - clock[ia]
     f = np.where(span > 0, (clock[at] - clock[ia]) / np.where(span > 0, span, 1.0), (at - ia) / (ib - ia))
     f = np.clip(f, 0.0, 1.0)
-    start = interpolate(poses[ia], poses[ib], f)
-    again = start.copy()
-    how_again = np.full(len(at), BETWEEN, dtype=np.int8)
-    fit_again = np.zeros(len(at))
-    _place_run(tiles, start, start, again, how_again, 0, len(at), (unplaced[int(k)] for k in at), match, limits,
-               np.ones(len(at), dtype=np.bool_), lambda k: None, fit_again)  # fmt: skip
-    better = (how_again == PLACED) & ((how[at] != PLACED) | (fit_again > fit[at]))
-    poses[at[better]] = again[better]
-    how[at[better]] = PLACED
-    fit[at[better]] = fit_again[better]
+    between = interpolate(poses[ia], poses[ib], f)
+    returns = [unplaced[int(k)] for k in at]
+    for start in _second_starts(between, poses[ia], poses[ib]):
+        again = start.copy()
+        how_again = np.full(len(at), BETWEEN, dtype=np.int8)
+        fit_again = np.zeros(len(at))
+        _place_run(tiles, start, start, again, how_again, 0, len(at), returns, match, limits,
+                   np.ones(len(at), dtype=np.bool_), lambda k: None, fit_again)  # fmt: skip
+        better = (how_again == PLACED) & ((how[at] != PLACED) | (fit_again > fit[at]))
+        poses[at[better]] = again[better]
+        how[at[better]] = PLACED
+        fit[at[better]] = fit_again[better]
+
+
+def _second_starts(between: np.ndarray, before: np.ndarray, after: np.ndarray) -> list[np.ndarray]:
+    """The second start's poses (each (M, 3)): every position and every heading of the interpolated pose
+    between the placed scans around each scan and of those two scans. A lost odometry reading hides how the
+    motion was shared out between the scans: turned in place and then driven on (a dropout at a corner),
+    the scan stands where the one before it stood, which the interpolated position misses by up to the
+    whole step; a turn made in one of the two steps leaves the interpolated heading half of it off, beyond
+    the fine climb's reach at a few metres' range."""
+    poses = (between, before, after)
+    starts = []
+    for position in poses:
+        for heading in poses:
+            start = np.empty_like(between)
+            start[:, :2] = position[:, :2]
+            start[:, 2] = heading[:, 2]
+            starts.append(start)
+    return starts
 
 
 def _cuts(n: int, anchored: np.ndarray | None, workers: int) -> list[int]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -270,6 +271,19 @@ def test_scans_between_neighbours_follow_the_motion_not_the_filters_jump():
     assert trans < 0.005 and rot < 0.2  # along the recorded poses: 1.4 deg
 
 
+def _reading_7_lost(truth: np.ndarray) -> tuple[np.ndarray, np.ndarray, list, np.ndarray]:
+    """(motion, anchored, scans, recorded poses) of a run along `truth` (14 poses) whose odometry misses the
+    reading of scan 7: no motion into it, its motion and scan 8's together into scan 8; only scan 0 anchored."""
+    motion = np.vstack([np.zeros(3), compose(inverse(truth[:-1]), truth[1:])])
+    lost = motion.copy()
+    lost[7] = 0.0
+    lost[8] = compose(motion[7], motion[8])
+    anchored = np.zeros(14, dtype=bool)
+    anchored[0] = True
+    ends = [(scan_from(q), 0.0) for q in truth]
+    return lost, anchored, ends, dead_reckoned(truth[0], lost)
+
+
 def test_a_scan_whose_odometry_was_lost_is_placed_between_its_neighbours_in_time():
     """The odometry misses one reading (no motion into scan 7, twice the motion into scan 8), as a log that
     drops a message: from the scan before, scan 7 starts 60 cm behind, too far for its match to be kept,
@@ -278,16 +292,33 @@ def test_a_scan_whose_odometry_was_lost_is_placed_between_its_neighbours_in_time
     xy, p = room_map()
     truth = truth_path(14)
     truth[:, 0] = 1.0 + 0.6 * np.arange(14)
-    motion = np.vstack([np.zeros(3), compose(inverse(truth[:-1]), truth[1:])])
-    lost = motion.copy()
-    lost[7] = 0.0
-    lost[8] = compose(motion[7], motion[8])
-    anchored = np.zeros(14, dtype=bool)
-    anchored[0] = True
-    ends = [(scan_from(q), 0.0) for q in truth]
-    recorded = dead_reckoned(truth[0], lost)
+    lost, anchored, ends, recorded = _reading_7_lost(truth)
     assert errors(recorded[7:8], truth[7:8])[0] > 0.55  # the test means something
     placed = place_scans(xy, p, recorded, of(ends), SETTINGS, anchored=anchored, motion=lost, times=np.arange(14.0))
+    assert placed.how[7] == PLACED
+    trans, rot = errors(placed.poses, truth)
+    assert trans < 0.005 and rot < 0.1
+
+
+def test_a_turn_hidden_by_a_lost_reading_is_found_from_a_neighbours_position():
+    """The robot turns in place by 0.5 rad into scan 7 and drives 0.6 m into scan 8, but the odometry misses
+    the reading of scan 7 (all the motion comes with scan 8). The pose interpolated by time between scans
+    6 and 8 is 0.3 m and 0.25 rad off, beyond the fine climb's reach: the second start also starts from the
+    neighbours' positions and headings, and climbs with the update's matcher (`search`), which places it."""
+    xy, p = room_map()
+    truth = np.zeros((14, 3))
+    truth[:7, 0], truth[:7, 1] = 1.0 + 0.6 * np.arange(7), 4.0
+    truth[7] = [truth[6, 0], 4.0, -0.5]
+    steps = 0.6 * np.arange(1, 7)
+    truth[8:] = np.column_stack([truth[7, 0] + steps * math.cos(-0.5), 4.0 + steps * math.sin(-0.5), np.full(6, -0.5)])
+    lost, anchored, ends, recorded = _reading_7_lost(truth)
+    between = (truth[6] + truth[8]) / 2
+    off_m, off_deg = errors(between[None, :], truth[7:8])
+    assert off_m > 0.25 and off_deg > 14.0  # the test means something
+    search = replace(SETTINGS, step_xy_m=0.05, step_phi_rad=0.05, levels=5)
+    placed = place_scans(
+        xy, p, recorded, of(ends), SETTINGS, anchored=anchored, motion=lost, times=np.arange(14.0), search=search
+    )
     assert placed.how[7] == PLACED
     trans, rot = errors(placed.poses, truth)
     assert trans < 0.005 and rot < 0.1
