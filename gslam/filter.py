@@ -292,7 +292,7 @@ class GSlamFilter:
     def _travelled_far(self) -> int:
         """1 where the noise-free travel since the last update reaches match_coarse_deeper_travel_m."""
         far = self.cfg.match_coarse_deeper_travel_m
-        return int(far > 0 and self._travel_m >= far)
+        return int(far > 0 and self._travelled(far, math.inf))
 
     def _disagrees(self) -> bool:
         """`recheck_ratio`: the update's matched poses (the particles' median) moved further from the

@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from worlds import corridor_world, simulate_robot_loop
+from worlds import corridor_world, drive_filter, simulate_robot_loop
 
 import gslam.filter
 from gslam.config import FilterConfig
 from gslam.filter import GSlamFilter, StepResult
 from gslam.motion import apply_odometry, odometry_delta
-from gslam.scan import Scan, ScanGeometry
+from gslam.scan import ScanGeometry
 
 SLIP = (7, 8)
 """The scans whose odometry step is reported at twice its length."""
@@ -47,16 +47,7 @@ def _drive(sim, odometry, geom, monkeypatch, **options) -> tuple[list[StepResult
         return MATCH_AND_WEIGH(*args, **kwargs)
 
     monkeypatch.setattr(gslam.filter, "match_and_weigh", spy)
-    results = []
-    for k in range(len(sim.t_s)):
-        predict = None
-        if k:
-            delta = odometry_delta(odometry[k - 1], odometry[k])
-
-            def predict(poses, rng, delta=delta):
-                return apply_odometry(poses, delta, rng, cfg.odom_sigma)
-
-        results.append(flt.step(Scan(float(k), sim.ranges[k], geom), predict))
+    results = list(drive_filter(flt, np.arange(len(sim.t_s), dtype=float), odometry, sim.ranges, geom))
     return results, calls
 
 

@@ -12,12 +12,11 @@ import math
 
 import numpy as np
 import pytest
-from worlds import corridor_world, simulate_robot_loop
+from worlds import corridor_world, drive_filter, simulate_robot_loop
 
 from gslam.config import FilterConfig
 from gslam.filter import GSlamFilter
-from gslam.motion import apply_odometry, odometry_delta
-from gslam.scan import Scan, ScanGeometry
+from gslam.scan import ScanGeometry
 
 
 def _drive(heading_sigma_rad: float, **options) -> tuple[GSlamFilter, list[float], np.ndarray, np.ndarray]:
@@ -25,18 +24,7 @@ def _drive(heading_sigma_rad: float, **options) -> tuple[GSlamFilter, list[float
     geom = ScanGeometry(len(sim.ranges[0]), sim.start_angle_rad, sim.angle_increment_rad, sim.max_range_m)
     cfg = FilterConfig(particles=16, seed=0, **options)
     flt = GSlamFilter(cfg, sim.odometry[0])
-    scales = []
-    for k in range(len(sim.t_s)):
-        predict = None
-        if k:
-            delta = odometry_delta(sim.odometry[k - 1], sim.odometry[k])
-
-            def predict(poses, rng, delta=delta):
-                return apply_odometry(poses, delta, rng, cfg.odom_sigma)
-
-        result = flt.step(Scan(sim.t_s[k], sim.ranges[k], geom), predict)
-        if result.updated:
-            scales.append(flt.heading_noise_scale)
+    scales = [flt.heading_noise_scale for r in drive_filter(flt, sim.t_s, sim.odometry, sim.ranges, geom) if r.updated]
     _, traj = flt.best_trajectory()
     return flt, scales, traj, sim.truth
 

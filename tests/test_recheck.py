@@ -13,12 +13,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from worlds import corridor_world, simulate_robot_loop
+from worlds import corridor_world, drive_filter, simulate_robot_loop
 
 from gslam.config import FilterConfig
 from gslam.filter import GSlamFilter, StepResult
 from gslam.motion import apply_odometry, odometry_delta
-from gslam.scan import Scan, ScanGeometry
+from gslam.scan import ScanGeometry
 
 BACK = 20
 """Scans backed up: 2 m at 0.1 m a scan."""
@@ -42,21 +42,9 @@ def _reversing_log():
 
 
 def _drive(start, t_s, odometry, ranges, geom, **options) -> list[StepResult]:
-    """Each scan's step result, the filter (FilterConfig with `options`, seed 0) started at `start` and
-    moved by the odometry between scans."""
-    cfg = FilterConfig(**{"particles": 16, "seed": 0, **options})
-    flt = GSlamFilter(cfg, start)
-    results = []
-    for k in range(len(ranges)):
-        predict = None
-        if k:
-            delta = odometry_delta(odometry[k - 1], odometry[k])
-
-            def predict(poses, rng, delta=delta):
-                return apply_odometry(poses, delta, rng, cfg.odom_sigma)
-
-        results.append(flt.step(Scan(float(t_s[k]), ranges[k], geom), predict))
-    return results
+    """Each scan's step result, the filter (FilterConfig with `options`, seed 0) started at `start`."""
+    flt = GSlamFilter(FilterConfig(**{"particles": 16, "seed": 0, **options}), start)
+    return list(drive_filter(flt, t_s, odometry, ranges, geom))
 
 
 def _run(**options) -> tuple[np.ndarray, np.ndarray, int, int]:

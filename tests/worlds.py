@@ -3,11 +3,14 @@ and a corridor loop with pillars driven by an odometry robot with an offset lase
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
 
-from gslam.motion import ackermann_step
+from gslam.filter import GSlamFilter, StepResult
+from gslam.motion import ackermann_step, apply_odometry, odometry_delta
+from gslam.scan import Scan, ScanGeometry
 from gslam.vehicle import AckermannVehicle
 from pipelines.demo.world import World, ray_cast
 
@@ -214,3 +217,19 @@ def simulate_robot_loop(
         rk = ray_cast(world, np.array([lx, ly]), truth[k, 2] + mount_pose[2] + bearings, max_range_m)
         ranges[k] = np.where(np.isfinite(rk), rk + rng.normal(0, range_sigma_m, beam_count), np.inf)
     return RobotLog(np.arange(n) / scan_hz, truth, odo, ranges, start, inc, max_range_m, mount_pose)
+
+
+def drive_filter(
+    flt: GSlamFilter, t_s: np.ndarray, odometry: np.ndarray, ranges: np.ndarray, geom: ScanGeometry
+) -> Iterator[StepResult]:
+    """Step `flt` through the scans (`ranges`, taken at `t_s`), moved between them by the odometry poses'
+    differences with its own odometry noise; yields each step's result."""
+    for k in range(len(ranges)):
+        predict = None
+        if k:
+            delta = odometry_delta(odometry[k - 1], odometry[k])
+
+            def predict(poses, rng, delta=delta):
+                return apply_odometry(poses, delta, rng, flt.cfg.odom_sigma)
+
+        yield flt.step(Scan(float(t_s[k]), ranges[k], geom), predict)
