@@ -269,6 +269,12 @@ class FilterConfig:
     place_climb_stride: int = 1
     """The placement's climb scores every k-th return (1: all of them; the update's matcher takes every
     match_climb_stride-th): one match a scan, so every return is worth its time (docs/CHOICES.md)."""
+    place_rasters: int = 2
+    """The map is rasterised for the placement this many times, each raster's cell lattice shifted over
+    the cell (`gslam.placement.raster_shifts`); a scan climbs on the first and is finished by Gauss-Newton on
+    each of the others from there, and is placed at the mean of the matches. A raster summarises its
+    points by their cell's mean, so a match moves by millimetres with where the cell edges fall; the mean
+    of two rasters' matches errs less (docs/CHOICES.md)."""
     place_min_hit_fraction: float = 0.5
     """A placement match is kept when at least this share of the scan's returns find the map near them."""
     place_max_shift_m: float = 0.5
@@ -450,6 +456,7 @@ _LIMITS: dict[str, tuple[float, float, bool]] = {
     "place_step_phi_rad": (0, _RADIANS, False),
     "place_levels": (0, 30, True),
     "place_climb_stride": (1, 10_000, True),
+    "place_rasters": (1, 64, True),
     "place_min_hit_fraction": (0, 1, True),
     "place_max_shift_m": (0, _METRES, False),
     "place_max_turn_rad": (0, _RADIANS, False),

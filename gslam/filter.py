@@ -157,7 +157,19 @@ class GSlamFilter:
         motion = np.asarray(self._motion, dtype=float).reshape(-1, 3)
         search = MatchSettings.from_config(cfg)
         placement = place_scans(
-            xy, p, recorded, ends, settings, limits, anchored, workers, progress, motion, times, search
+            xy,
+            p,
+            recorded,
+            ends,
+            settings,
+            limits,
+            anchored,
+            workers,
+            progress,
+            motion,
+            times,
+            search,
+            rasters=cfg.place_rasters,
         )
         self.placed = (times, placement.poses)
         return placement

@@ -14,10 +14,13 @@ path between them, corrected at each end to the matched poses, the correction bl
 it (`between_matched`). A scan with fewer than `min_returns` returns has nothing to match: it is placed
 the same way and counted apart. When no scan at all is matched, the trajectory is left as recorded.
 
-The map's points are sorted once into square tiles (`tile_m`) so that each match reads only the points
-of the tiles its window covers, not the whole map. The scans are placed in batches by one compiled call
-each (`_place_batch`, the matcher's own kernels: the same poses as `match_and_weigh` with one particle),
-so no scan costs an interpreter round trip.
+The map's points are sorted once into square tiles (`tile_m`) so that a raster reads only the points of
+the tiles it covers, not the whole map. The map is rasterised more than once (`rasters`), each raster's
+cell lattice shifted over the cell (`raster_shifts`): a scan is climbed on the first and finished by
+Gauss-Newton on the others, and placed at the mean, so that where the cell edges fall matters less. A
+raster reaches beyond the window that asked for it and is kept while the next scans' windows lie inside
+it. The scans are placed in batches by one compiled call each (`_place_batch`, the matcher's own
+kernels), so no scan costs an interpreter round trip.
 """
 
 from __future__ import annotations
@@ -111,6 +114,7 @@ def place_scans(
     motion: np.ndarray | None = None,
     times: np.ndarray | None = None,
     search: MatchSettings | None = None,
+    rasters: int = 1,
 ) -> Placement:
     """Match each scan against the map (`map_xy`, `map_p`) and return the placed trajectory; the scans
     whose match is not kept are placed between matched neighbours. `scans(a, b)` gives the scans a to
@@ -125,7 +129,8 @@ def place_scans(
     the filter's correction is in them); None: the recorded poses' differences. `workers` > 1: the scans
     are cut at anchored scans into that many runs, placed at once (threads; the compiled matcher runs
     without the interpreter's lock), each reading its own scans: the same result as one worker.
-    `progress(done, total)` is called every 256 scans or so.
+    `progress(done, total)` is called every 256 scans or so. `rasters`: how many rasters of the map, their
+    lattices shifted over the cell, a scan's match is the mean of (`_place_batch`).
 
     A scan whose match is not kept, or whose motion breaks from its neighbours', is matched once more from
     the pose between the matched scans around it, interpolated by its time (`times`, T; None: by its
@@ -155,7 +160,7 @@ def place_scans(
     def run(part: int) -> None:
         a, b = cuts[part], cuts[part + 1]
         _place_run(tiles, recorded, path, poses, how, a, b, scans(a, b), match, limits, anchored,
-                   lambda k: report(part, k), fit, unplaced, suspect)  # fmt: skip
+                   lambda k: report(part, k), fit, unplaced, suspect, rasters)  # fmt: skip
 
     if len(cuts) == 2:
         run(0)
@@ -163,7 +168,9 @@ def place_scans(
         with ThreadPoolExecutor(len(cuts) - 1) as pool:
             for f in [pool.submit(run, part) for part in range(len(cuts) - 1)]:
                 f.result()
-    _place_again_between(tiles, poses, how, fit, unplaced, suspect, match if search is None else search, limits, times)
+    _place_again_between(
+        tiles, poses, how, fit, unplaced, suspect, match if search is None else search, limits, times, rasters
+    )
     if progress is not None:
         progress(n, n)
     return Placement(between_matched(path, poses, how == PLACED), how)
@@ -172,6 +179,21 @@ def place_scans(
 SUSPECT_SHIFT_M = 0.25
 SUSPECT_TURN_RAD = 0.1
 """A scan's motion breaks from its neighbours' when it differs from their mean by this much."""
+
+
+def raster_shifts(rasters: int, cell_m: float) -> np.ndarray:
+    """The shifts (rasters, 2) of the placement's rasters' cell lattices, in m: the Hammersley points
+    (j / rasters, the bits of j mirrored about the binary point) of the unit square, times the cell; the
+    first is 0 (the map frame's lattice). Spread evenly over the cell, so that their cell edges fall at
+    different places in both directions."""
+    j = np.arange(rasters)
+    mirrored = np.zeros(rasters)
+    bit, rest = 0.5, j.copy()
+    while rest.any():
+        mirrored += bit * (rest & 1)
+        rest >>= 1
+        bit *= 0.5
+    return np.column_stack([(j + 0.5) / rasters, (mirrored + 0.5 / rasters) % 1.0]) * cell_m
 
 
 def _motion_breaks(path: np.ndarray, anchored: np.ndarray | None) -> np.ndarray:
@@ -201,6 +223,7 @@ def _place_again_between(
     match: MatchSettings,
     limits: PlacementLimits,
     times: np.ndarray | None,
+    rasters: int = 1,
 ) -> None:
     """The second start of `place_scans`, for the scans not placed and those whose motion breaks from their
     neighbours' (`_motion_breaks`; returns in `unplaced`): each matched from the pose interpolated by time
@@ -228,7 +251,7 @@ def _place_again_between(
         how_again = np.full(len(at), BETWEEN, dtype=np.int8)
         fit_again = np.zeros(len(at))
         _place_run(tiles, start, start, again, how_again, 0, len(at), returns, match, limits,
-                   np.ones(len(at), dtype=np.bool_), lambda k: None, fit_again)  # fmt: skip
+                   np.ones(len(at), dtype=np.bool_), lambda k: None, fit_again, rasters=rasters)  # fmt: skip
         better = (how_again == PLACED) & ((how[at] != PLACED) | (fit_again > fit[at]))
         poses[at[better]] = again[better]
         how[at[better]] = PLACED
@@ -270,6 +293,9 @@ def _cuts(n: int, anchored: np.ndarray | None, workers: int) -> list[int]:
 
 
 BATCH = 256
+
+RASTER_SLACK_M = 1.0
+"""How far a placement raster reaches beyond the match window that asked for it (`_place_batch`)."""
 """Scans handed to the compiled placement at once (and the progress reported after each batch)."""
 
 
@@ -289,6 +315,7 @@ def _place_run(
     fit: np.ndarray,
     unplaced: dict[int, tuple[np.ndarray, float]] | None = None,
     suspect: np.ndarray | None = None,
+    rasters: int = 1,
 ) -> None:
     """Place the scans a to b - 1 (`poses`, `how` written in place); scan a and the anchored ones start from
     their recorded pose, the others from the scan before as placed, moved as `path` moves. The scans are
@@ -296,13 +323,14 @@ def _place_run(
     placed, and of the `suspect` ones, are kept in `unplaced` (when given) for a second start."""
     anchor = np.ones(len(recorded), dtype=np.bool_) if anchored is None else np.asarray(anchored, dtype=np.bool_)
     parameters = match.parameters()
-    grid = np.full(0, _EMPTY, dtype=np.int32)
-    sums = np.empty((len(tiles.xy) + 1, 3))
-    touched = np.empty(len(tiles.xy) + 1, dtype=np.int64)
+    shifts = raster_shifts(rasters, match.cell_m)
+    grids = np.full((len(shifts), 0), _EMPTY, dtype=np.int32)
+    sums = np.empty((len(shifts), len(tiles.xy) + 1, 3))
+    touched = np.empty((len(shifts), len(tiles.xy) + 1), dtype=np.int64)
     pending: list[tuple[np.ndarray, float]] = []
 
     def place(first: int) -> None:
-        nonlocal grid
+        nonlocal grids
         ends = np.concatenate([e for e, _ in pending]) if pending else np.zeros((0, 2))
         counts = np.array([len(e) for e, _ in pending], dtype=np.int64)
         offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
@@ -318,10 +346,10 @@ def _place_run(
                 ends, score_inv, offsets, first, i, a, anchor, recorded, path, poses, how,
                 match.cell_m, match.kernel, match.min_p, match.margin_m, parameters, match.climb_stride,
                 match.fine_stride, limits.min_returns, limits.min_hit_fraction, limits.max_shift_m, limits.max_turn_rad,
-                grid, sums, touched, fit,
+                shifts, grids, sums, touched, fit,
             )  # fmt: skip
-            if i < len(pending):  # scan i's window needs a larger raster (as `MatchWorkspace.reserve`)
-                grid = np.full(int(cells * 1.25) + 1, _EMPTY, dtype=np.int32)
+            if i < len(pending):  # scan i's window needs larger rasters (as `MatchWorkspace.reserve`)
+                grids = np.full((len(shifts), int(cells * 1.25) + 1), _EMPTY, dtype=np.int32)
         if unplaced is not None:
             for j, scan in enumerate(pending):
                 if how[first + j] == BETWEEN or (suspect is not None and suspect[first + j]):
@@ -365,20 +393,39 @@ def _tile_ranges(key, rows, cols, origin_x, origin_y, tile_m, x0, y0, x1, y1, lo
 @njit(cache=True, nogil=True)
 def _place_batch(tile_xy, tile_p, key, origin_x, origin_y, tile_m, rows, cols, ends, score_inv, offsets,
                  first, begin, a, anchored, recorded, path, poses, how, cell_m, kernel, min_p, margin, match,
-                 climb_stride, fine_stride, min_returns, min_hit_fraction, max_shift, max_turn, grid, sums,
-                 touched, fit):  # pragma: no cover - compiled  # fmt: skip
+                 climb_stride, fine_stride, min_returns, min_hit_fraction, max_shift, max_turn, shifts, grids,
+                 sums, touched, fit):  # pragma: no cover - compiled  # fmt: skip
     """Place the scans first, first + 1, ... (their returns ends[offsets[i]:offsets[i + 1]]) in turn, as
     `match_and_weigh` matches one particle: the start (recorded at anchored scans and at a, else the scan
-    before as placed moved along `path`), the map's tiles under the start's window grown by max_shift,
-    their points rasterised in the match window, the fine climb and the Gauss-Newton finish, the match
-    kept or not (`PlacementLimits`). `poses`, `how` and `fit` (a kept match's score per return) written in
-    place. Starts at the batch's scan `begin`;
-    returns (the scans of the batch done, 0), or (i, cells) when scan i's window needs a raster of that many
-    cells, more than `grid` has: the caller grows it and calls again from i."""
+    before as placed moved along `path`), the fine climb and the Gauss-Newton finish on the map's points
+    rasterised around the start's match window (its returns' box grown by `margin`), the match kept or not
+    (`PlacementLimits`).
+
+    One raster per row of `shifts` (its cell lattice shifted by that much in x and y from the map frame's):
+    the climb and the finish on the first, the finish alone from there on each of the others, and the
+    match's pose the mean of theirs. A raster's cells summarise the points by their cell's mean, so a match
+    moves with where the cell edges fall by up to a few millimetres; rasters with their edges at different
+    places each err in their own way, and their mean less. A raster is kept for the next scans while their
+    match windows lie inside it: it reaches RASTER_SLACK_M beyond the window that asked for it, so that a
+    scan a few centimetres on from the one before reads the same cells instead of rasterising most of the
+    map again.
+
+    `poses`, `how` and `fit` (a kept match's score per return, on the first raster) written in place.
+    Starts at the batch's scan `begin`; returns (the scans of the batch done, 0), or (i, cells) when scan
+    i's window needs rasters of that many cells, more than `grids` have: the caller grows them and calls
+    again from i. `grids` are left empty either way."""
     lo = np.empty(cols, dtype=np.int64)
     hi = np.empty(cols, dtype=np.int64)
     start = np.empty(3)
+    mean = np.empty(3)
     n = offsets.shape[0] - 1
+    m = shifts.shape[0]
+    used = np.zeros(m, dtype=np.int64)
+    have = np.zeros(m, dtype=np.bool_)  # raster j is in grids[j]: its window (x0[j], y0[j], nx[j], ny[j])
+    x0 = np.zeros(m)
+    y0 = np.zeros(m)
+    nx = np.zeros(m, dtype=np.int64)
+    ny = np.zeros(m, dtype=np.int64)
     for i in range(begin, n):
         k = first + i
         if anchored[k] or k == a:
@@ -392,24 +439,32 @@ def _place_batch(tile_xy, tile_p, key, origin_x, origin_y, tile_m, rows, cols, e
             continue
         e, w = ends[o0:o1].copy(), score_inv[o0:o1].copy()
         rx0, ry0, rx1, ry1 = end_point_box(start[0], start[1], math.cos(start[2]), math.sin(start[2]), e)
-        reach = margin + max_shift  # the tiles: the window of a match that moves the start as far as kept
-        n_ranges = _tile_ranges(key, rows, cols, origin_x, origin_y, tile_m, rx0 - reach, ry0 - reach, rx1 + reach,
-                                ry1 + reach, lo, hi)  # fmt: skip
-        points = 0
-        for r in range(n_ranges):
-            points += hi[r] - lo[r]
-        if points == 0:
-            continue
-        x0, y0, x1, y1 = rx0 - margin, ry0 - margin, rx1 + margin, ry1 + margin
-        nx = int(math.ceil((x1 - x0) / cell_m) + 1)
-        ny = int(math.ceil((y1 - y0) / cell_m) + 1)
-        if nx * ny > grid.shape[0]:
-            return i, nx * ny
-        used = 0
-        for r in range(n_ranges):  # the tiles' points, in `MapTiles`' order, as one `_rasterise`
-            used = _rasterise_range(tile_xy, tile_p, lo[r], hi[r], min_p, x0, y0, nx, ny, cell_m, grid, sums, touched,
-                                    used)  # fmt: skip
-        _to_means(sums, used)
+        wx0, wy0, wx1, wy1 = rx0 - margin, ry0 - margin, rx1 + margin, ry1 + margin  # the match's window
+        for j in range(m):
+            if (have[j] and wx0 >= x0[j] and wy0 >= y0[j] and wx1 <= x0[j] + (nx[j] - 1) * cell_m
+                    and wy1 <= y0[j] + (ny[j] - 1) * cell_m):  # fmt: skip
+                continue
+            grid = grids[j]
+            for slot in range(used[j]):
+                grid[touched[j, slot]] = -1
+            used[j] = 0
+            have[j] = False
+            x0[j] = math.floor((wx0 - RASTER_SLACK_M - shifts[j, 0]) / cell_m) * cell_m + shifts[j, 0]
+            y0[j] = math.floor((wy0 - RASTER_SLACK_M - shifts[j, 1]) / cell_m) * cell_m + shifts[j, 1]
+            nx[j] = int(math.ceil((wx1 + RASTER_SLACK_M - x0[j]) / cell_m) + 1)
+            ny[j] = int(math.ceil((wy1 + RASTER_SLACK_M - y0[j]) / cell_m) + 1)
+            if nx[j] * ny[j] > grid.shape[0]:
+                _empty_all(grids, touched, used)
+                return i, nx[j] * ny[j]
+            n_ranges = _tile_ranges(key, rows, cols, origin_x, origin_y, tile_m, x0[j], y0[j],
+                                    x0[j] + nx[j] * cell_m, y0[j] + ny[j] * cell_m, lo, hi)  # fmt: skip
+            for r in range(n_ranges):  # the tiles' points, in `MapTiles`' order, as one `_rasterise`
+                used[j] = _rasterise_range(tile_xy, tile_p, lo[r], hi[r], min_p, x0[j], y0[j], nx[j], ny[j],
+                                           cell_m, grid, sums[j], touched[j], used[j])  # fmt: skip
+            _to_means(sums[j], used[j])
+            have[j] = True
+        if used[0] == 0:
+            continue  # no map near the scan: it is placed between matched neighbours
         ce, cw = e, w  # the climb's returns and the fine levels' (`scanmatch._every`)
         if climb_stride > 1:
             ce, cw = e[::climb_stride].copy(), w[::climb_stride].copy()
@@ -417,21 +472,37 @@ def _place_batch(tile_xy, tile_p, key, origin_x, origin_y, tile_m, rows, cols, e
         if fine_stride > 1:
             fe, fw = ce[::fine_stride].copy(), cw[::fine_stride].copy()
         pose = start.copy()
-        if used:
-            result = _fine_climb(pose, ce, cw, fe, fw, e, w, x0, y0, nx, ny, cell_m, kernel, grid, sums,
-                                 match)  # fmt: skip
-        else:  # no map in the window: every return misses
-            result = _finish(pose, e, x0, y0, nx, ny, cell_m, kernel, grid, sums, w, match[7], match[4], match[5],
-                             match[6], 0, match[12], match[12])  # fmt: skip
-        for slot in range(used):
-            grid[touched[slot]] = -1
+        result = _fine_climb(pose, ce, cw, fe, fw, e, w, x0[0], y0[0], nx[0], ny[0], cell_m, kernel, grids[0],
+                             sums[0], match)  # fmt: skip
+        if m > 1:
+            mean[:] = 0.0
+            for j in range(1, m):
+                other = pose.copy()
+                _finish(other, e, x0[j], y0[j], nx[j], ny[j], cell_m, kernel, grids[j], sums[j], w, match[7],
+                        match[4], match[5], match[6], int(match[11]), match[12], match[12])  # fmt: skip
+                mean[0] += other[0] - pose[0]
+                mean[1] += other[1] - pose[1]
+                mean[2] += wrap_angle_scalar(other[2] - pose[2])
+            pose[0] += mean[0] / m
+            pose[1] += mean[1] / m
+            pose[2] = wrap_angle_scalar(pose[2] + mean[2] / m)
         shift = math.hypot(pose[0] - start[0], pose[1] - start[1])
         turn = abs(wrap_angle_scalar(pose[2] - start[2]))
         if result[2] >= min_hit_fraction * (o1 - o0) and shift <= max_shift and turn <= max_turn:
             poses[k, 0], poses[k, 1], poses[k, 2] = pose[0], pose[1], pose[2]
             how[k] = 0  # PLACED
             fit[k] = result[0] / (o1 - o0)
+    _empty_all(grids, touched, used)
     return n, 0
+
+
+@njit(cache=True, nogil=True)
+def _empty_all(grids, touched, used):  # pragma: no cover - compiled
+    """Every raster's occupied cells back to empty."""
+    for j in range(grids.shape[0]):
+        for slot in range(used[j]):
+            grids[j, touched[j, slot]] = -1
+        used[j] = 0
 
 
 def dead_reckoned(start: np.ndarray, motion: np.ndarray) -> np.ndarray:
