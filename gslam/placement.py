@@ -182,10 +182,11 @@ SUSPECT_TURN_RAD = 0.1
 
 
 def raster_shifts(rasters: int, cell_m: float) -> np.ndarray:
-    """The shifts (rasters, 2) of the placement's rasters' cell lattices, in m: the Hammersley points
-    (j / rasters, the bits of j mirrored about the binary point) of the unit square, times the cell; the
-    first is 0 (the map frame's lattice). Spread evenly over the cell, so that their cell edges fall at
-    different places in both directions."""
+    """The shifts (rasters, 2) of the placement's rasters' cell lattices from the map frame's, in m: the
+    Hammersley points (j / rasters, the bits of j mirrored about the binary point) of the unit square,
+    moved half their spacing off the origin, times the cell. Spread evenly over the cell, so that their
+    cell edges fall at different places in both directions, and none on the map frame's lattice (a raster
+    on it placed intel's scans worse: docs/CHOICES.md)."""
     j = np.arange(rasters)
     mirrored = np.zeros(rasters)
     bit, rest = 0.5, j.copy()
@@ -293,10 +294,10 @@ def _cuts(n: int, anchored: np.ndarray | None, workers: int) -> list[int]:
 
 
 BATCH = 256
+"""Scans handed to the compiled placement at once (and the progress reported after each batch)."""
 
 RASTER_SLACK_M = 1.0
 """How far a placement raster reaches beyond the match window that asked for it (`_place_batch`)."""
-"""Scans handed to the compiled placement at once (and the progress reported after each batch)."""
 
 
 def _place_run(
@@ -421,8 +422,7 @@ def _place_batch(tile_xy, tile_p, key, origin_x, origin_y, tile_m, rows, cols, e
     n = offsets.shape[0] - 1
     m = shifts.shape[0]
     used = np.zeros(m, dtype=np.int64)
-    have = np.zeros(m, dtype=np.bool_)  # raster j is in grids[j]: its window (x0[j], y0[j], nx[j], ny[j])
-    x0 = np.zeros(m)
+    x0 = np.zeros(m)  # raster j's window (x0[j], y0[j], nx[j], ny[j]); nx[j] 0: none made yet
     y0 = np.zeros(m)
     nx = np.zeros(m, dtype=np.int64)
     ny = np.zeros(m, dtype=np.int64)
@@ -441,14 +441,12 @@ def _place_batch(tile_xy, tile_p, key, origin_x, origin_y, tile_m, rows, cols, e
         rx0, ry0, rx1, ry1 = end_point_box(start[0], start[1], math.cos(start[2]), math.sin(start[2]), e)
         wx0, wy0, wx1, wy1 = rx0 - margin, ry0 - margin, rx1 + margin, ry1 + margin  # the match's window
         for j in range(m):
-            if (have[j] and wx0 >= x0[j] and wy0 >= y0[j] and wx1 <= x0[j] + (nx[j] - 1) * cell_m
+            if (nx[j] > 0 and wx0 >= x0[j] and wy0 >= y0[j] and wx1 <= x0[j] + (nx[j] - 1) * cell_m
                     and wy1 <= y0[j] + (ny[j] - 1) * cell_m):  # fmt: skip
                 continue
             grid = grids[j]
-            for slot in range(used[j]):
-                grid[touched[j, slot]] = -1
+            _empty(grid, touched[j], used[j])
             used[j] = 0
-            have[j] = False
             x0[j] = math.floor((wx0 - RASTER_SLACK_M - shifts[j, 0]) / cell_m) * cell_m + shifts[j, 0]
             y0[j] = math.floor((wy0 - RASTER_SLACK_M - shifts[j, 1]) / cell_m) * cell_m + shifts[j, 1]
             nx[j] = int(math.ceil((wx1 + RASTER_SLACK_M - x0[j]) / cell_m) + 1)
@@ -462,7 +460,6 @@ def _place_batch(tile_xy, tile_p, key, origin_x, origin_y, tile_m, rows, cols, e
                 used[j] = _rasterise_range(tile_xy, tile_p, lo[r], hi[r], min_p, x0[j], y0[j], nx[j], ny[j],
                                            cell_m, grid, sums[j], touched[j], used[j])  # fmt: skip
             _to_means(sums[j], used[j])
-            have[j] = True
         if used[0] == 0:
             continue  # no map near the scan: it is placed between matched neighbours
         ce, cw = e, w  # the climb's returns and the fine levels' (`scanmatch._every`)
@@ -497,11 +494,17 @@ def _place_batch(tile_xy, tile_p, key, origin_x, origin_y, tile_m, rows, cols, e
 
 
 @njit(cache=True, nogil=True)
+def _empty(grid, touched, used):  # pragma: no cover - compiled
+    """A raster's `used` occupied cells (their slots in `touched`) back to empty."""
+    for slot in range(used):
+        grid[touched[slot]] = _EMPTY
+
+
+@njit(cache=True, nogil=True)
 def _empty_all(grids, touched, used):  # pragma: no cover - compiled
     """Every raster's occupied cells back to empty."""
     for j in range(grids.shape[0]):
-        for slot in range(used[j]):
-            grids[j, touched[j, slot]] = -1
+        _empty(grids[j], touched[j], used[j])
         used[j] = 0
 
 
