@@ -127,6 +127,13 @@ class GSlamFilter:
             return self.placed
         return self.tree.trajectory(self.best_particle())
 
+    def spread_poses(self, sigma_xy_m: float, sigma_phi_rad: float) -> None:
+        """Spread the particles' poses by independent normal draws (sd; m, rad) from the filter's generator:
+        a start known only so well (a continued run's start carried back by the odometry)."""
+        n = len(self.poses)
+        self.poses[:, :2] += self.rng.standard_normal((n, 2)) * sigma_xy_m
+        self.poses[:, 2] = wrap_angle(self.poses[:, 2] + self.rng.standard_normal(n) * sigma_phi_rad)
+
     def place_every_scan(
         self,
         scans: Callable[[int, int], Iterable[Scan]],

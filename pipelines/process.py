@@ -215,7 +215,10 @@ def _open(
         skip_blas_probe()
         previous, start = (None, None) if continuation is None else _continue(continuation, log, cfg, notice)
         connected = start is None or start.pose is not None
-        runner = SlamRunner(log, cfg, start=None if start is None else start.pose)
+        runner = SlamRunner(
+            log, cfg, None if start is None else start.pose,
+            (0, 0) if start is None else (start.sigma_xy_m, start.sigma_phi_rad),
+        )  # fmt: skip
         if previous is not None and connected:
             runner.filter.seed_map(previous.map_xy, previous.map_p)
         metadata = _run_metadata(input_path, log, runner, cfg, command)

@@ -14,6 +14,7 @@ from bagtools import bag_from_robot
 from typer.testing import CliRunner
 from worlds import corridor_world, office_world, simulate_robot_loop
 
+from gslam.config import FilterConfig
 from gslam.se2 import compose, inverse
 from mcaplog import channels as ch
 from mcaplog.mcapio import McapInput
@@ -427,6 +428,7 @@ def test_an_ackermann_log_finds_its_start_by_its_controls(carpark_mcap, tmp_path
     (the surveyed poles, kept at the log's start by the cut). `gslam localise` tracks the half in the first
     half's map from a global start (seed 0: 84 % of its scans, median error 0.20 m against GPS)."""
     from pipelines.evaluation.localisation import evaluate_localisation
+    from pipelines.run.continuation import CARRY_SD_PER_M
     from pipelines.run.input_log import InputLog
 
     at = 293
@@ -439,6 +441,10 @@ def test_an_ackermann_log_finds_its_start_by_its_controls(carpark_mcap, tmp_path
     assert code == 0, out
     start = McapInput(tmp_path / "b-map.mcap").metadata()["continuation"]["start"]
     assert start["how"] == "found", start
+    # found metres in and carried back over a turn: the particles start spread by what that carry may be off
+    assert start["found_at_scan"] > 0 and start["travel_m"] > 1.0, start
+    assert start["sigma_xy_m"] == pytest.approx(CARRY_SD_PER_M * start["travel_m"], abs=1e-3), start
+    assert start["sigma_phi_rad"] > 0.02, start
     gps = InputLog(carpark_mcap).gps_array()
     fix = [np.interp(cut_s, gps[:, 0], gps[:, k]) for k in (1, 2)]
     assert math.dist(start["pose"][:2], fix) < 0.5, (start, fix)
@@ -457,3 +463,23 @@ def test_an_ackermann_log_finds_its_start_by_its_controls(carpark_mcap, tmp_path
     assert code == 0, out
     m = evaluate_localisation(tmp_path / "loc.mcap")
     assert m["tracked_share"] > 0.6 and m["error_trans_median_m"] < 0.5, m
+
+
+def test_a_start_known_only_so_well_spreads_the_particles(carpark_mcap):
+    """A continued run's start carried back by the odometry (`Start.sigma_xy_m`, `sigma_phi_rad`) starts the
+    particles spread by those standard deviations around it, drawn from the filter's seeded generator; a
+    start found at the first scan (no spread) leaves them at the pose, bit for bit."""
+    from pipelines.run.input_log import InputLog
+    from pipelines.run.runner import RunConfig, SlamRunner
+
+    log = InputLog(carpark_mcap)
+    start = np.array([3.0, -2.0, 0.5])
+    cfg = RunConfig(filter=FilterConfig(particles=400, seed=1))
+    spread = SlamRunner(log, cfg, start, (0.4, 0.1)).filter.poses
+    assert np.std(spread[:, :2] - start[:2]) == pytest.approx(0.4, rel=0.15)
+    assert np.std(spread[:, 2] - start[2]) == pytest.approx(0.1, rel=0.15)
+    assert np.allclose(spread.mean(axis=0), start, atol=0.06)
+    again = SlamRunner(log, cfg, start, (0.4, 0.1)).filter.poses
+    assert np.array_equal(spread, again)  # seeded
+    exact = SlamRunner(log, cfg, start).filter.poses
+    assert np.array_equal(exact, np.tile(start, (400, 1)))

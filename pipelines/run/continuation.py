@@ -296,12 +296,19 @@ class Start:
     """Scans searched for in the old map (in all of them, where the result holds more than one)."""
     map: int = 0
     """The map of the previous result it was found in (`PreviousRun.maps`): 0 its own."""
+    sigma_xy_m: float = 0.0
+    sigma_phi_rad: float = 0.0
+    """How far the start may be off for having been carried back from the scan found (sd; m, rad): the
+    odometry's error over that travel and turn (`CARRY_SD_PER_M`, `CARRY_SD_PER_RAD`); 0 for a start found
+    at the first scan or given."""
 
     def record(self) -> dict:
         return {
             "how": self.how,
             "map": self.map,
             "pose": None if self.pose is None else [float(v) for v in self.pose],
+            "sigma_xy_m": round(self.sigma_xy_m, 4),
+            "sigma_phi_rad": round(self.sigma_phi_rad, 4),
             "found_at_scan": self.scan,
             "travel_m": round(self.travel_m, 3),
             "scans_searched": self.scans_searched,
@@ -322,6 +329,11 @@ CONFIRM_RAD, CONFIRM_PER_RAD = 0.05, 0.2
 """Two scans found in the old map confirm each other when the odometry between them takes the first one's
 pose to within 0.2 m + 0.1 of the distance and 0.05 rad + 0.2 of the turn (three standard deviations of the
 motion model's rotation noise) of the second one's: a look-alike place is not found twice, consistently."""
+CARRY_SD_PER_M, CARRY_SD_PER_RAD = CONFIRM_PER_M / 3, CONFIRM_PER_RAD / 3
+"""How far a start carried back by the odometry from the scan found to the first scan may be off (sd), per
+metre of travel and per radian of turn: a third of the confirmation's tolerances (three sd). The filter's
+particles start spread so (`SlamRunner`), so that the first scans' matches against the old map pick the
+start out, rather than every particle taking the odometry's error over a turn as the map's frame."""
 
 
 def find_start(
@@ -364,18 +376,18 @@ def find_start(
 
 
 class _Candidates:
-    """The new run's scans that the start search looks for, (scan, travel, odometry, returns) each: one every
+    """The new run's scans that the start search looks for, (scan, travel, odometry, returns, turn) each: one every
     `CANDIDATE_TRAVEL_M` or `CANDIDATE_TURN_RAD` of its first `SEARCH_TRAVEL_M` of travel, the first scan
     first. Read from the log as far as a search asks for them, and kept, so that the next map's search takes
     the same ones without reading the log again."""
 
     def __init__(self, log: InputLog, vehicle: AckermannVehicle | None, laser_yaw_rad: float) -> None:
-        self.taken: list[tuple[int, float, np.ndarray, np.ndarray]] = []
+        self.taken: list[tuple[int, float, np.ndarray, np.ndarray, float]] = []
         self.travel_m = 0.0
         """The odometry's travel over the scans read so far."""
         self._rows = self._read(log, vehicle, laser_yaw_rad)
 
-    def batches(self) -> Iterator[list[tuple[int, float, np.ndarray, np.ndarray]]]:
+    def batches(self) -> Iterator[list[tuple[int, float, np.ndarray, np.ndarray, float]]]:
         """The candidates in order, `CANDIDATES_AT_ONCE` at a time (each region's field is built once for them)."""
         at = 0
         while True:
@@ -389,7 +401,7 @@ class _Candidates:
 
     def _read(
         self, log: InputLog, vehicle: AckermannVehicle | None, laser_yaw_rad: float
-    ) -> Iterator[tuple[int, float, np.ndarray, np.ndarray]]:
+    ) -> Iterator[tuple[int, float, np.ndarray, np.ndarray, float]]:
         from pipelines.run.scans import scan_stream
 
         c, s = math.cos(laser_yaw_rad), math.sin(laser_yaw_rad)
@@ -409,18 +421,18 @@ class _Candidates:
             taken = len(self.taken)
             if taken and self.travel_m < taken * CANDIDATE_TRAVEL_M and turn < taken * CANDIDATE_TURN_RAD:
                 continue
-            yield index, self.travel_m, np.asarray(odom, dtype=float), ends
+            yield index, self.travel_m, np.asarray(odom, dtype=float), ends, turn
 
 
 def _find_in(graph: PreviousGraph, candidates: _Candidates, mount: LaserMount | None, workers: int) -> Start:
     """`find_start` in one map, whose pose graph is `graph`."""
     backend = PoseGraphBackEnd(BackEndSettings())
     backend.add_previous(*graph)
-    last_hit: tuple | None = None  # (base pose, odometry, scan, travel) of the last candidate found
+    last_hit: tuple | None = None  # (base pose, odometry, scan, travel, turn) of the last candidate found
     searched = 0
     for batch in candidates.batches():
-        hits = backend.locate([ends for _, _, _, ends in batch], workers)
-        for (index, at_m, odom, _), hit in zip(batch, hits, strict=True):
+        hits = backend.locate([ends for _, _, _, ends, _ in batch], workers)
+        for (index, at_m, odom, _, turn), hit in zip(batch, hits, strict=True):
             searched += 1
             if hit is None:
                 last_hit = None
@@ -433,8 +445,11 @@ def _find_in(graph: PreviousGraph, candidates: _Candidates, mount: LaserMount | 
                     moved[0], moved[1]
                 ) and abs(wrap_angle_scalar(expected[2] - base[2])) <= CONFIRM_RAD + CONFIRM_PER_RAD * abs(moved[2]):
                     # carried back from the first of the two, the nearer the first scan (the first candidate)
-                    first, first_odom, first_index, first_m = last_hit
+                    first, first_odom, first_index, first_m, first_turn = last_hit
                     back = compose(inverse(first_odom), candidates.taken[0][2])
-                    return Start(compose(first, back), "found", first_index, first_m, searched)
-            last_hit = (base, odom, index, at_m)
+                    return Start(
+                        compose(first, back), "found", first_index, first_m, searched,
+                        sigma_xy_m=CARRY_SD_PER_M * first_m, sigma_phi_rad=CARRY_SD_PER_RAD * first_turn,
+                    )  # fmt: skip
+            last_hit = (base, odom, index, at_m, turn)
     return Start(None, "lost", 0, candidates.travel_m, searched)

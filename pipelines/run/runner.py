@@ -120,9 +120,12 @@ class Step:
 class SlamRunner:
     """Streams an `InputLog` through a `GSlamFilter`, one scan at a time."""
 
-    def __init__(self, log: InputLog, cfg: RunConfig, start: np.ndarray | None = None) -> None:
+    def __init__(
+        self, log: InputLog, cfg: RunConfig, start: np.ndarray | None = None, start_sigma: tuple[float, float] = (0, 0)
+    ) -> None:
         """`start`: the base's pose at the first scan, in the map of the run this one continues (`gslam process
-        --continue`); None: the run's own frame (odometry logs: the first scan's odometry pose)."""
+        --continue`); None: the run's own frame (odometry logs: the first scan's odometry pose).
+        `start_sigma`: how far that start may be off (sd; m, rad): the particles start spread so."""
         self.log = log
         self.cfg = cfg
         self.start = None if start is None else np.asarray(start, dtype=float)
@@ -143,6 +146,8 @@ class SlamRunner:
         self._made_at = np.zeros(3) if self.initial_pose is None else np.asarray(self.initial_pose, dtype=float)
         """The pose the filter's particles start from (spread round it by `initial_sigma_*`)."""
         self.filter = make_filter(cfg, self._made_at, log.self_return_range_m)
+        if self.start is not None and any(start_sigma) and isinstance(self.filter, GSlamFilter):
+            self.filter.spread_poses(*start_sigma)
         self.mount = log.mount
         fcfg = cfg.filter
         self.live: LiveBackEnd | None = None
