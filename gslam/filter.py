@@ -71,8 +71,7 @@ class GSlamFilter:
         n = cfg.particles
         self.poses = np.tile(np.asarray(initial_pose, dtype=float), (n, 1))
         if cfg.initial_sigma_xy_m > 0 or cfg.initial_sigma_phi_rad > 0:
-            self.poses[:, :2] += self.rng.standard_normal((n, 2)) * cfg.initial_sigma_xy_m
-            self.poses[:, 2] = wrap_angle(self.poses[:, 2] + self.rng.standard_normal(n) * cfg.initial_sigma_phi_rad)
+            self.spread_poses(cfg.initial_sigma_xy_m, cfg.initial_sigma_phi_rad)
         self.weights = np.full(n, 1.0 / n)
         self._summary_of: np.ndarray | None = None  # the weights `_summary` is of
         self._summary = (float(n), 0)
@@ -129,7 +128,7 @@ class GSlamFilter:
 
     def spread_poses(self, sigma_xy_m: float, sigma_phi_rad: float) -> None:
         """Spread the particles' poses by independent normal draws (sd; m, rad) from the filter's generator:
-        a start known only so well (a continued run's start carried back by the odometry)."""
+        a start known only so well (`initial_sigma_*`; a continued run's start carried back by the odometry)."""
         n = len(self.poses)
         self.poses[:, :2] += self.rng.standard_normal((n, 2)) * sigma_xy_m
         self.poses[:, 2] = wrap_angle(self.poses[:, 2] + self.rng.standard_normal(n) * sigma_phi_rad)
