@@ -281,6 +281,15 @@ class FilterConfig:
     """... and it moves the scan's start by less than this (more is a jump, not a correction) ..."""
     place_max_turn_rad: float = 0.25
     """... and turns it by less than this."""
+    place_retrack: bool = True
+    """Place each update's scan a second time from the pose tracked to it (the scan before as placed, moved
+    by the odometry), with the scans after it up to the next update, and keep the chain that fits the final
+    map better (`gslam.placement.Retrack`): a jump the filter took at an update, which the scans after it
+    do not bear out, is undone (docs/CHOICES.md)."""
+    place_retrack_m: float = 0.02
+    """... where the tracked start lies at least this far from the recorded one ..."""
+    place_retrack_rad: float = 0.01
+    """... or turned at least this much from it."""
     loop_closure: bool = True
     """When the run ends (after the placement), put a pose graph under the trajectory: nodes every 0.5 m or
     0.5 rad, tied by the placed motion, closed by each node's scan found by branch and bound in submaps
@@ -460,6 +469,8 @@ _LIMITS: dict[str, tuple[float, float, bool]] = {
     "place_min_hit_fraction": (0, 1, True),
     "place_max_shift_m": (0, _METRES, False),
     "place_max_turn_rad": (0, _RADIANS, False),
+    "place_retrack_m": (0, _METRES, True),
+    "place_retrack_rad": (0, _RADIANS, True),
     "resample_threshold": (0, 1, False),
     "speed_sigma_mps": (0, _METRES, True),
     "speed_sigma_rel": (0, _METRES, True),

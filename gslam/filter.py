@@ -14,7 +14,7 @@ from gslam.ancestry import AncestryTree
 from gslam.backend import BackEndSettings, PoseGraphBackEnd, PreviousGraph
 from gslam.config import FilterConfig
 from gslam.motion import wrap_angle, wrap_angle_scalar
-from gslam.placement import Placement, PlacementLimits, place_scans
+from gslam.placement import Placement, PlacementLimits, Retrack, place_scans
 from gslam.pointmap import MAP_DTYPE, PointMap, cell_keys, distinct_maps
 from gslam.resampling import continue_from_parents, effective_sample_size, reweight_and_resample
 from gslam.scan import Scan
@@ -176,6 +176,7 @@ class GSlamFilter:
             times,
             search,
             rasters=cfg.place_rasters,
+            retrack=Retrack(cfg.place_retrack_m, cfg.place_retrack_rad) if cfg.place_retrack else None,
         )
         self.placed = (times, placement.poses)
         return placement

@@ -14,6 +14,12 @@ path between them, corrected at each end to the matched poses, the correction bl
 it (`between_matched`). A scan with fewer than `min_returns` returns has nothing to match: it is placed
 the same way and counted apart. When no scan at all is matched, the trajectory is left as recorded.
 
+An update's scan starts from the pose the filter recorded there, the scans after it from the one before
+as placed. Where the pose tracked to the update's scan (the scan before moved by the motion) differs from
+the recorded one, that scan and the rest of its segment (up to the next update) are placed from both, and
+the chain that fits the map better is kept (`Retrack`): a jump the filter took at an update is undone when
+the scans after it do not bear it out.
+
 The map's points are sorted once into square tiles (`tile_m`) so that a raster reads only the points of
 the tiles it covers, not the whole map. The map is rasterised more than once (`rasters`), each raster's
 cell lattice shifted over the cell (`raster_shifts`): a scan is climbed on the first and finished by
@@ -59,12 +65,36 @@ class PlacementLimits:
     """The same for the heading."""
 
 
+@dataclass(frozen=True)
+class Retrack:
+    """An update's scan placed a second time, from the pose tracked to it: the scan before as the first pass
+    placed it, moved by the motion between the two. The first pass starts it from the pose the filter
+    recorded there, which carries the update's correction, right or wrong: along a corridor a particle
+    filter can take a jump that one scan's returns favour and the next ones' do not. Where the tracked
+    start lies at least `gate_m` or `gate_rad` from the recorded one, the scan and those after it up to the
+    next update (its segment) are placed on from the tracked start too, and the new chain is kept when both
+    the scans and the motion favour it: its matches score higher over the segment (the sum of each scan's
+    score per return, 0 for a match not kept), and its steps, from the scan before to the next update's
+    recorded pose, stray less from the motion (`off_motion`). The scans alone would decide by chance where
+    they cannot tell poses apart (a featureless corridor), and a chain kept there slides along it."""
+
+    gate_m: float = 0.02
+    gate_rad: float = 0.01
+
+    def differs(self, tracked: np.ndarray, recorded: np.ndarray) -> bool:
+        """Whether the two starts lie far enough apart to place the segment again."""
+        d = compose(inverse(tracked), recorded)
+        return bool(math.hypot(d[0], d[1]) >= self.gate_m or abs(d[2]) >= self.gate_rad)
+
+
 @dataclass
 class Placement:
     """The placed trajectory and how each scan got its pose (PLACED, BETWEEN, NO_RETURNS)."""
 
     poses: np.ndarray
     how: np.ndarray
+    retracked: int = 0
+    """The update segments whose chain from the tracked start was kept (`Retrack`)."""
 
     def counts(self) -> dict[str, int]:
         return {
@@ -72,6 +102,7 @@ class Placement:
             "matched": int(np.sum(self.how == PLACED)),
             "between_matched": int(np.sum(self.how == BETWEEN)),
             "no_returns": int(np.sum(self.how == NO_RETURNS)),
+            "retracked_segments": int(self.retracked),
         }
 
 
@@ -115,6 +146,7 @@ def place_scans(
     times: np.ndarray | None = None,
     search: MatchSettings | None = None,
     rasters: int = 1,
+    retrack: Retrack | None = None,
 ) -> Placement:
     """Match each scan against the map (`map_xy`, `map_p`) and return the placed trajectory; the scans
     whose match is not kept are placed between matched neighbours. `scans(a, b)` gives the scans a to
@@ -130,7 +162,8 @@ def place_scans(
     are cut at anchored scans into that many runs, placed at once (threads; the compiled matcher runs
     without the interpreter's lock), each reading its own scans: the same result as one worker.
     `progress(done, total)` is called every 256 scans or so. `rasters`: how many rasters of the map, their
-    lattices shifted over the cell, a scan's match is the mean of (`_place_batch`).
+    lattices shifted over the cell, a scan's match is the mean of (`_place_batch`). `retrack`: each anchored
+    scan's segment placed again from the pose tracked to it where that differs (`Retrack`); None: off.
 
     A scan whose match is not kept, or whose motion breaks from its neighbours', is matched once more from
     the pose between the matched scans around it, interpolated by its time (`times`, T; None: by its
@@ -157,10 +190,12 @@ def place_scans(
                 done[part] = k
                 progress(sum(done), n)
 
+    run_ends = [(np.zeros(3), 0)] * (len(cuts) - 1)  # the first pass's pose of each run's last scan, retracks
+
     def run(part: int) -> None:
         a, b = cuts[part], cuts[part + 1]
-        _place_run(tiles, recorded, path, poses, how, a, b, scans(a, b), match, limits, anchored,
-                   lambda k: report(part, k), fit, unplaced, suspect, rasters)  # fmt: skip
+        run_ends[part] = _place_run(tiles, recorded, path, poses, how, a, b, scans(a, b), match, limits, anchored,
+                                    lambda k: report(part, k), fit, unplaced, suspect, rasters, retrack)  # fmt: skip
 
     if len(cuts) == 2:
         run(0)
@@ -168,12 +203,87 @@ def place_scans(
         with ThreadPoolExecutor(len(cuts) - 1) as pool:
             for f in [pool.submit(run, part) for part in range(len(cuts) - 1)]:
                 f.result()
+    retracked = sum(kept for _, kept in run_ends)
+    if retrack is not None and anchored is not None:
+        for part in range(1, len(cuts) - 1):  # where a run began, the scan before was another's
+            k = cuts[part]
+            e = k + 1
+            while e < n and not anchored[e]:
+                e += 1
+            before = run_ends[part - 1][0]
+            tracked = compose(before, compose(inverse(path[k - 1]), path[k]))
+            if retrack.differs(tracked, recorded[k]):
+                retracked += _retrack_segment(tiles, recorded, path, poses, how, fit, k, e, before, tracked,
+                                              scans(k, e), match, limits, anchored, unplaced, suspect,
+                                              rasters)  # fmt: skip
     _place_again_between(
         tiles, poses, how, fit, unplaced, suspect, match if search is None else search, limits, times, rasters
     )
     if progress is not None:
         progress(n, n)
-    return Placement(between_matched(path, poses, how == PLACED), how)
+    return Placement(between_matched(path, poses, how == PLACED), how, retracked)
+
+
+def _retrack_segment(
+    tiles: MapTiles,
+    recorded: np.ndarray,
+    path: np.ndarray,
+    poses: np.ndarray,
+    how: np.ndarray,
+    fit: np.ndarray,
+    k: int,
+    e: int,
+    before: np.ndarray,
+    tracked: np.ndarray,
+    returns: Iterable[tuple[np.ndarray, float]],
+    match: MatchSettings,
+    limits: PlacementLimits,
+    anchored: np.ndarray,
+    unplaced: dict[int, tuple[np.ndarray, float]],
+    suspect: np.ndarray,
+    rasters: int,
+) -> bool:
+    """`Retrack` for the segment k to e - 1 that begins a worker's run (`place_scans`): placed again from
+    `tracked` (`before`, the first pass's pose of scan k - 1, moved by the motion), as `_place_run` does
+    within a run; the chain that scores higher kept, its scans' returns
+    kept in `unplaced` as the chain's own run would have kept them. Returns whether the new chain was kept."""
+    rec = recorded.copy()
+    rec[k] = tracked
+    alt_poses, alt_how, alt_fit = poses.copy(), np.full_like(how, BETWEEN), np.zeros_like(fit)
+    alt_unplaced: dict[int, tuple[np.ndarray, float]] = {}
+    _place_run(tiles, rec, path, alt_poses, alt_how, k, e, returns, match, limits, anchored, lambda j: None,
+               alt_fit, alt_unplaced, suspect, rasters)  # fmt: skip
+    if _keeps(before, path, recorded, k, e, (poses, fit), (alt_poses, alt_fit)):
+        poses[k:e], how[k:e], fit[k:e] = alt_poses[k:e], alt_how[k:e], alt_fit[k:e]
+        for j in range(k, e):
+            unplaced.pop(j, None)
+        unplaced.update(alt_unplaced)
+        return True
+    return False
+
+
+def off_motion(before: np.ndarray, chain: np.ndarray, path: np.ndarray, k: int, end: np.ndarray | None) -> float:
+    """How far a chain of poses (the scans k, k + 1, ..., `chain` (M, 3)) strays from the motion of `path`:
+    the sum over its steps, from the pose `before` of scan k - 1 through the chain to `end` (the next
+    scan's pose, None: none), of the step's difference from the path's step (its length in m plus its
+    turn in rad)."""
+    poses = np.vstack([before[None], chain] + ([end[None]] if end is not None else []))
+    last = k + len(poses) - 1
+    steps = compose(inverse(poses[:-1]), poses[1:])
+    moved = compose(inverse(path[k - 1 : last - 1]), path[k:last])
+    d = compose(inverse(moved), steps)
+    return float(np.sum(np.hypot(d[:, 0], d[:, 1]) + np.abs(d[:, 2])))
+
+
+def _keeps(
+    before: np.ndarray, path: np.ndarray, recorded: np.ndarray, k: int, e: int, first: tuple, again: tuple
+) -> bool:
+    """`Retrack`'s choice for the segment k to e - 1: whether the chain `again` (poses, fits) beats `first`,
+    in score and in keeping to the motion (to the next update's recorded pose, when there is one)."""
+    if again[1][k:e].sum() <= first[1][k:e].sum():
+        return False
+    end = recorded[e] if e < len(recorded) else None
+    return off_motion(before, again[0][k:e], path, k, end) < off_motion(before, first[0][k:e], path, k, end)
 
 
 SUSPECT_SHIFT_M = 0.25
@@ -294,7 +404,10 @@ def _cuts(n: int, anchored: np.ndarray | None, workers: int) -> list[int]:
 
 
 BATCH = 256
-"""Scans handed to the compiled placement at once (and the progress reported after each batch)."""
+"""Scans handed to the compiled placement at once, at least (and the progress reported after each batch):
+a batch goes on to the next anchored scan, so that `Retrack`'s segments lie in one batch ..."""
+MAX_BATCH = 4 * BATCH
+"""... up to this many."""
 
 RASTER_SLACK_M = 1.0
 """How far a placement raster reaches beyond the match window that asked for it (`_place_batch`)."""
@@ -317,11 +430,16 @@ def _place_run(
     unplaced: dict[int, tuple[np.ndarray, float]] | None = None,
     suspect: np.ndarray | None = None,
     rasters: int = 1,
-) -> None:
+    retrack: Retrack | None = None,
+) -> tuple[np.ndarray, int]:
     """Place the scans a to b - 1 (`poses`, `how` written in place); scan a and the anchored ones start from
     their recorded pose, the others from the scan before as placed, moved as `path` moves. The scans are
-    read here and placed in batches by one compiled call each (`_place_batch`); the returns of the scans not
-    placed, and of the `suspect` ones, are kept in `unplaced` (when given) for a second start."""
+    read here and placed in batches by one compiled call each (`_place_batch`), a batch ending before an
+    anchored scan where it can; with `retrack`, each anchored scan after a is placed again from its tracked
+    start where that differs (`Retrack`), with the scans up to the next anchored one. The returns of the
+    scans not placed, and of the `suspect` ones, are kept in `unplaced` (when given) for a second start.
+    Returns the pose of scan b - 1 as the first pass placed it (the tracked start of the run after it) and
+    how many segments the retrack kept."""
     anchor = np.ones(len(recorded), dtype=np.bool_) if anchored is None else np.asarray(anchored, dtype=np.bool_)
     parameters = match.parameters()
     shifts = raster_shifts(rasters, match.cell_m)
@@ -329,9 +447,59 @@ def _place_run(
     sums = np.empty((len(shifts), len(tiles.xy) + 1, 3))
     touched = np.empty((len(shifts), len(tiles.xy) + 1), dtype=np.int64)
     pending: list[tuple[np.ndarray, float]] = []
+    first_pass_end = np.zeros(3)  # the first pass's pose of the scan before the batch
+    again: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None  # retrack's scratch
+    kept = 0  # segments the retrack kept
+
+    def compiled(begin: int, offsets: np.ndarray, first: int, start_at: int, rec: np.ndarray, out: tuple,
+                 ends: np.ndarray, score_inv: np.ndarray) -> None:  # fmt: skip
+        """`_place_batch` over the scans first + begin ... (offsets into ends), growing the rasters as asked."""
+        nonlocal grids
+        out_poses, out_how, out_fit = out
+        i = begin
+        while i < len(offsets) - 1:
+            i, cells = _place_batch(
+                tiles.xy, tiles.p, tiles.key, tiles.origin[0], tiles.origin[1], tiles.tile_m, tiles.rows, tiles.cols,
+                ends, score_inv, offsets, first, i, start_at, anchor, rec, path, out_poses, out_how,
+                match.cell_m, match.kernel, match.min_p, match.margin_m, parameters, match.climb_stride,
+                match.fine_stride, limits.min_returns, limits.min_hit_fraction, limits.max_shift_m, limits.max_turn_rad,
+                shifts, grids, sums, touched, out_fit,
+            )  # fmt: skip
+            if i < len(offsets) - 1:  # scan i's window needs larger rasters (as `MatchWorkspace.reserve`)
+                grids = np.full((len(shifts), int(cells * 1.25) + 1), _EMPTY, dtype=np.int32)
+
+    def place_again(first: int, count: int, before: np.ndarray, offsets: np.ndarray, ends: np.ndarray,
+                    score_inv: np.ndarray) -> None:  # fmt: skip
+        """`Retrack`: each anchored scan k after a among scans first ... first + count - 1 whose segment ends
+        in the batch, placed with its segment from the tracked start (the first pass's pose of scan k - 1,
+        `before[k - first]`, moved along `path`) where that differs from the recorded one."""
+        nonlocal again, kept
+        for k in range(max(first, a + 1), first + count):
+            if not anchor[k]:
+                continue
+            e = k + 1
+            while e < first + count and not anchor[e]:
+                e += 1
+            if e == first + count and e < b and not anchor[e]:
+                break  # the segment goes on into the next batch (one cut at MAX_BATCH): left as it is
+            tracked = compose(before[k - first], compose(inverse(path[k - 1]), path[k]))
+            if not retrack.differs(tracked, recorded[k]):
+                continue
+            if again is None:
+                again = (recorded.copy(), np.empty_like(poses), np.empty_like(how), np.empty_like(fit))
+            rec, alt_poses, alt_how, alt_fit = again
+            rec[k] = tracked
+            alt_how[k:e] = BETWEEN
+            alt_fit[k:e] = 0.0
+            i0, i1 = k - first, e - first
+            compiled(0, offsets[i0 : i1 + 1], k, k, rec, (alt_poses, alt_how, alt_fit), ends, score_inv)
+            rec[k] = recorded[k]
+            if _keeps(before[k - first], path, recorded, k, e, (poses, fit), (alt_poses, alt_fit)):
+                poses[k:e], how[k:e], fit[k:e] = alt_poses[k:e], alt_how[k:e], alt_fit[k:e]
+                kept += 1
 
     def place(first: int) -> None:
-        nonlocal grids
+        nonlocal first_pass_end
         ends = np.concatenate([e for e, _ in pending]) if pending else np.zeros((0, 2))
         counts = np.array([len(e) for e, _ in pending], dtype=np.int64)
         offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
@@ -340,17 +508,15 @@ def _place_run(
         sigma_rad = np.repeat(np.asarray(widths, dtype=float), counts)
         # as `match_and_weigh`: the score's width at each return
         score_inv = 0.5 / (match.score_sigma_m**2 + (rng * sigma_rad) ** 2)
-        i = 0
-        while i < len(pending):
-            i, cells = _place_batch(
-                tiles.xy, tiles.p, tiles.key, tiles.origin[0], tiles.origin[1], tiles.tile_m, tiles.rows, tiles.cols,
-                ends, score_inv, offsets, first, i, a, anchor, recorded, path, poses, how,
-                match.cell_m, match.kernel, match.min_p, match.margin_m, parameters, match.climb_stride,
-                match.fine_stride, limits.min_returns, limits.min_hit_fraction, limits.max_shift_m, limits.max_turn_rad,
-                shifts, grids, sums, touched, fit,
-            )  # fmt: skip
-            if i < len(pending):  # scan i's window needs larger rasters (as `MatchWorkspace.reserve`)
-                grids = np.full((len(shifts), int(cells * 1.25) + 1), _EMPTY, dtype=np.int32)
+        compiled(0, offsets, first, a, recorded, (poses, how, fit), ends, score_inv)
+        if retrack is not None:
+            before = np.empty((len(pending) + 1, 3))  # the first pass's poses of scans first - 1 ...
+            before[0] = first_pass_end
+            before[1:] = poses[first : first + len(pending)]
+            place_again(first, len(pending), before, offsets, ends, score_inv)
+            first_pass_end = before[-1]
+        else:
+            first_pass_end = poses[first + len(pending) - 1].copy()
         if unplaced is not None:
             for j, scan in enumerate(pending):
                 if how[first + j] == BETWEEN or (suspect is not None and suspect[first + j]):
@@ -360,17 +526,18 @@ def _place_run(
     for pts, increment_rad in scans:
         if read >= b:
             raise ValueError(f"more scans than recorded poses ({len(recorded)})")
+        if len(pending) >= MAX_BATCH or (len(pending) >= BATCH and anchor[read]):
+            report(read - len(pending) - a)
+            place(read - len(pending))
+            pending = []
         pending.append((np.asarray(pts, dtype=float).reshape(-1, 2), float(increment_rad)))
         read += 1
-        if len(pending) == BATCH:
-            report(read - BATCH - a)
-            place(read - BATCH)
-            pending = []
     if pending:
         report(read - len(pending) - a)
         place(read - len(pending))
     if read != b:
         raise ValueError(f"{read - a} scans for the {b - a} recorded poses {a} to {b - 1}")
+    return first_pass_end, kept
 
 
 @njit(cache=True, nogil=True)

@@ -110,7 +110,13 @@ def test_each_scan_is_matched_to_its_true_pose():
     assert errors(recorded, truth)[0] > 0.03  # the test means something: the start is off
     ends = [(scan_from(q), math.radians(1.0)) for q in truth]
     placed = place_scans(xy, p, recorded, of(ends), SETTINGS)
-    assert placed.counts() == {"scans": 60, "matched": 60, "between_matched": 0, "no_returns": 0}
+    assert placed.counts() == {
+        "scans": 60,
+        "matched": 60,
+        "between_matched": 0,
+        "no_returns": 0,
+        "retracked_segments": 0,
+    }
     trans, rot = errors(placed.poses, truth)
     assert trans < 0.005 and rot < 0.1
 

@@ -397,7 +397,11 @@ def test_the_result_carries_the_transform_tree_for_foxglove(tmp_path):
     bag = bag_from_log(log, tmp_path / "robot.bag", "ros1", 40, "topic", (0.25, -0.125, 0.5))
     ingest(bag, tmp_path / "robot.mcap")
     out = tmp_path / "r.mcap"
-    assert gslam("process", tmp_path / "robot.mcap", "-o", out, "--no-rrd", "-N", "2").exit_code == 0
+    # place_retrack off: it may move an update's scan further than the placement's own limit where the scans
+    # and the motion both favour it; along this featureless corridor at N 2 it does so by chance
+    # (docs/CHOICES.md, "Every scan placed by the final map")
+    args = ("process", tmp_path / "robot.mcap", "-o", out, "--no-rrd", "-N", "2", "--set", "place_retrack=false")
+    assert gslam(*args).exit_code == 0
 
     def planar(tf) -> np.ndarray:
         q = tf.rotation

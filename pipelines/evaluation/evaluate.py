@@ -308,6 +308,11 @@ def evaluate_result(result: Path, reference: Path | None = None) -> dict[str, An
             f"every scan placed by the final map: {placement.get('matched')} of {placement['scans']} matched, "
             f"{placement.get('between_matched')} placed between matched neighbours, "
             f"{placement.get('no_returns')} without returns"
+            + (
+                f"; {placement['retracked_segments']} update segments placed from the pose tracked to them"
+                if placement.get("retracked_segments")
+                else ""
+            )
         )
     closure = r.get("loop_closure")
     if isinstance(closure, dict):
