@@ -81,10 +81,21 @@ class Retrack:
     gate_m: float = 0.02
     gate_rad: float = 0.01
 
-    def differs(self, tracked: np.ndarray, recorded: np.ndarray) -> bool:
-        """Whether the two starts lie far enough apart to place the segment again."""
-        d = compose(inverse(tracked), recorded)
-        return bool(math.hypot(d[0], d[1]) >= self.gate_m or abs(d[2]) >= self.gate_rad)
+    def start(self, before: np.ndarray, path: np.ndarray, recorded: np.ndarray, k: int) -> np.ndarray | None:
+        """The tracked start of anchored scan k (`before`, the first pass's pose of scan k - 1, moved as `path`
+        moves), or None where it lies too near the recorded one to place the segment again."""
+        tracked = compose(before, compose(inverse(path[k - 1]), path[k]))
+        d = compose(inverse(tracked), recorded[k])
+        return tracked if math.hypot(d[0], d[1]) >= self.gate_m or abs(d[2]) >= self.gate_rad else None
+
+
+def _segment_end(anchor: np.ndarray, k: int, stop: int) -> int:
+    """The next anchored scan after k, or `stop` if none comes before it: anchored scan k's segment is k to
+    that scan - 1."""
+    e = k + 1
+    while e < stop and not anchor[e]:
+        e += 1
+    return e
 
 
 @dataclass
@@ -205,14 +216,13 @@ def place_scans(
                 f.result()
     retracked = sum(kept for _, kept in run_ends)
     if retrack is not None and anchored is not None:
+        anchor = np.asarray(anchored, dtype=bool)
         for part in range(1, len(cuts) - 1):  # where a run began, the scan before was another's
             k = cuts[part]
-            e = k + 1
-            while e < n and not anchored[e]:
-                e += 1
+            e = _segment_end(anchor, k, n)
             before = run_ends[part - 1][0]
-            tracked = compose(before, compose(inverse(path[k - 1]), path[k]))
-            if retrack.differs(tracked, recorded[k]):
+            tracked = retrack.start(before, path, recorded, k)
+            if tracked is not None:
                 retracked += _retrack_segment(tiles, recorded, path, poses, how, fit, k, e, before, tracked,
                                               scans(k, e), match, limits, anchored, unplaced, suspect,
                                               rasters)  # fmt: skip
@@ -245,8 +255,8 @@ def _retrack_segment(
 ) -> bool:
     """`Retrack` for the segment k to e - 1 that begins a worker's run (`place_scans`): placed again from
     `tracked` (`before`, the first pass's pose of scan k - 1, moved by the motion), as `_place_run` does
-    within a run; the chain that scores higher kept, its scans' returns
-    kept in `unplaced` as the chain's own run would have kept them. Returns whether the new chain was kept."""
+    within a run; the new chain kept as `_keeps` decides, its scans' returns kept in `unplaced` as the
+    chain's own run would have kept them. Returns whether the new chain was kept."""
     rec = recorded.copy()
     rec[k] = tracked
     alt_poses, alt_how, alt_fit = poses.copy(), np.full_like(how, BETWEEN), np.zeros_like(fit)
@@ -438,8 +448,8 @@ def _place_run(
     anchored scan where it can; with `retrack`, each anchored scan after a is placed again from its tracked
     start where that differs (`Retrack`), with the scans up to the next anchored one. The returns of the
     scans not placed, and of the `suspect` ones, are kept in `unplaced` (when given) for a second start.
-    Returns the pose of scan b - 1 as the first pass placed it (the tracked start of the run after it) and
-    how many segments the retrack kept."""
+    Returns, with `retrack`, the pose of scan b - 1 as the first pass placed it (the tracked start of the run
+    after it), and how many segments the retrack kept."""
     anchor = np.ones(len(recorded), dtype=np.bool_) if anchored is None else np.asarray(anchored, dtype=np.bool_)
     parameters = match.parameters()
     shifts = raster_shifts(rasters, match.cell_m)
@@ -447,7 +457,7 @@ def _place_run(
     sums = np.empty((len(shifts), len(tiles.xy) + 1, 3))
     touched = np.empty((len(shifts), len(tiles.xy) + 1), dtype=np.int64)
     pending: list[tuple[np.ndarray, float]] = []
-    first_pass_end = np.zeros(3)  # the first pass's pose of the scan before the batch
+    first_pass_end = np.zeros(3)  # with `retrack`: the first pass's pose of the scan before the batch
     again: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None  # retrack's scratch
     kept = 0  # segments the retrack kept
 
@@ -477,13 +487,11 @@ def _place_run(
         for k in range(max(first, a + 1), first + count):
             if not anchor[k]:
                 continue
-            e = k + 1
-            while e < first + count and not anchor[e]:
-                e += 1
+            e = _segment_end(anchor, k, first + count)
             if e == first + count and e < b and not anchor[e]:
                 break  # the segment goes on into the next batch (one cut at MAX_BATCH): left as it is
-            tracked = compose(before[k - first], compose(inverse(path[k - 1]), path[k]))
-            if not retrack.differs(tracked, recorded[k]):
+            tracked = retrack.start(before[k - first], path, recorded, k)
+            if tracked is None:
                 continue
             if again is None:
                 again = (recorded.copy(), np.empty_like(poses), np.empty_like(how), np.empty_like(fit))
@@ -515,8 +523,6 @@ def _place_run(
             before[1:] = poses[first : first + len(pending)]
             place_again(first, len(pending), before, offsets, ends, score_inv)
             first_pass_end = before[-1]
-        else:
-            first_pass_end = poses[first + len(pending) - 1].copy()
         if unplaced is not None:
             for j, scan in enumerate(pending):
                 if how[first + j] == BETWEEN or (suspect is not None and suspect[first + j]):
